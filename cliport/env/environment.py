@@ -1,0 +1,311 @@
+"""The workcell as a gym-style environment: ``reset(seed)`` and ``step(action)``."""
+
+from __future__ import annotations
+
+import contextlib
+import importlib.util
+import logging
+import os
+import shutil
+import sys
+import tempfile
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+import pybullet as p
+
+from cliport.env import cameras, heightmap, shapes
+from cliport.env.grippers import Spatula, Suction
+from cliport.env.primitives import PickPlaceSettings, PushSettings, pick_place, push
+from cliport.env.robot import UR5
+from cliport.env.transforms import Pose
+from cliport.utils.config import build, read_defaults
+
+log = logging.getLogger(__name__)
+
+
+class ActionError(ValueError):
+    """An action that cannot be executed; the message names the offending field."""
+
+
+@dataclass
+class EnvConfig:
+    camera_scale: float
+    renderer: str
+    sim_hz: int
+    settle_max_steps: int
+    settle_speed: float
+    raw_images: bool
+
+    @classmethod
+    def defaults(cls, **overrides: Any) -> EnvConfig:
+        return build(cls, read_defaults("env"), **overrides)
+
+
+class Task(Protocol):
+    """What the environment needs from a task (tasks live in ``cliport.tasks``)."""
+
+    max_steps: int
+    end_effector: str  # "suction" or "spatula"
+    primitive: str  # "pick_place" or "push"
+    primitive_settings: PickPlaceSettings | PushSettings
+
+    def reset(self, env: Environment, rng: np.random.Generator) -> None: ...
+
+    def reward(self) -> tuple[float, dict[str, Any]]: ...
+
+    def done(self) -> bool: ...
+
+    @property
+    def lang_goal(self) -> str | None: ...
+
+
+def _gpu_present() -> bool:
+    return os.path.exists("/dev/nvidia0")
+
+
+@contextlib.contextmanager
+def _quiet_native_output():
+    """Silence C-level writes to stdout and stderr (the EGL plugin's banners) inside the block."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = [os.dup(1), os.dup(2)]
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 1)
+        os.dup2(devnull, 2)
+        yield
+    finally:
+        os.dup2(saved[0], 1)
+        os.dup2(saved[1], 2)
+        for fd in (*saved, devnull):
+            os.close(fd)
+
+
+class Environment:
+    """PyBullet workcell with a UR5, three RGB-D cameras and an optional task.
+
+    Observations are dicts with ``color`` (320, 160, 3) uint8 and ``height`` (320, 160) float32
+    (metres above the table), fused top-down from the three cameras, plus ``cameras`` (a list of
+    dicts with ``color`` (H, W, 3) and ``depth`` (H, W)) when raw images are requested.
+    Actions are dicts ``{"pose0": (xyz, quat_xyzw), "pose1": (xyz, quat_xyzw)}`` in the world frame.
+    """
+
+    bounds = heightmap.BOUNDS
+    pixel_size = heightmap.PIXEL_SIZE
+
+    def __init__(self, config: EnvConfig | None = None, task: Task | None = None):
+        self.config = config or EnvConfig.defaults()
+        if self.config.camera_scale <= 0:
+            raise ValueError(f"camera_scale must be positive, got {self.config.camera_scale}")
+        self.client = p.connect(p.DIRECT)
+        self._asset_dir = tempfile.mkdtemp(prefix="cliport-assets-")
+        self.renderer, self.renderer_name = self._choose_renderer(self.config.renderer)
+        log.info("rendering with %s", self.renderer_name)
+        self.camera_configs = [c.scaled(self.config.camera_scale) for c in cameras.realsense_d415()]
+        self.task = task
+        self.robot: UR5 | None = None
+        self.ee: Suction | Spatula | None = None
+        self.objects: dict[str, list[int]] = {"fixed": [], "rigid": [], "deformable": []}
+        self.steps = 0
+        self.seed: int | None = None
+
+    # ------------------------------------------------------------------ set-up
+    def _choose_renderer(self, choice: str) -> tuple[int, str]:
+        if choice not in ("auto", "egl", "cpu"):
+            raise ValueError(f"renderer must be 'auto', 'egl' or 'cpu', got {choice!r}")
+        if choice == "cpu":
+            return p.ER_TINY_RENDERER, "cpu (TinyRenderer)"
+        spec = importlib.util.find_spec("eglRenderer")
+        plugin = -1
+        if spec is not None and spec.origin:
+            with _quiet_native_output():
+                plugin = p.loadPlugin(spec.origin, "_eglRendererPlugin", physicsClientId=self.client)
+        if plugin >= 0:
+            kind = "GPU" if _gpu_present() else "software OpenGL (Mesa)"
+            return p.ER_BULLET_HARDWARE_OPENGL, f"egl ({kind}, PyBullet eglRenderer plugin)"
+        if choice == "egl":
+            raise RuntimeError("renderer='egl' was requested but PyBullet's eglRenderer plugin did not load")
+        return p.ER_TINY_RENDERER, "cpu (TinyRenderer; the EGL plugin did not load)"
+
+    def set_task(self, task: Task | None) -> None:
+        self.task = task
+
+    def add_object(self, body: int, category: str = "rigid") -> int:
+        """Register a body created in ``self.client``: 'rigid' (graspable), 'fixed' or 'deformable'."""
+        if category not in self.objects:
+            raise ValueError(f"category must be one of {sorted(self.objects)}, got {category!r}")
+        self.objects[category].append(body)
+        if category in ("rigid", "deformable") and isinstance(self.ee, Suction):
+            self.ee.graspable.add(body)
+        return body
+
+    def reset(self, seed: int = 0) -> dict[str, Any]:
+        """Rebuild the scene for ``seed`` (same seed, same scene) and return the first observation."""
+        p.resetSimulation(physicsClientId=self.client)
+        p.setGravity(0, 0, -9.8, physicsClientId=self.client)
+        p.setTimeStep(1.0 / self.config.sim_hz, physicsClientId=self.client)
+        self.objects = {"fixed": [], "rigid": [], "deformable": []}
+        self.steps = 0
+        self.seed = seed
+        self._build_table()
+        end_effector = self.task.end_effector if self.task is not None else "suction"
+        self.robot = UR5(self.client, end_effector, self._asset_dir)
+        if end_effector == "suction":
+            self.ee = Suction(self.client, self.robot.body, self.robot.tip_link, set())
+        else:
+            self.ee = Spatula(self.client, self.robot.body, self.robot.tip_link)
+        if self.task is not None:
+            self.task.reset(self, np.random.default_rng(seed))
+            self.settle()
+        if self.renderer == p.ER_BULLET_HARDWARE_OPENGL:
+            # The EGL plugin shades the first frame after a reset differently from every later one
+            # (measured); render it once and discard it so that the same seed gives the same pixels.
+            with _quiet_native_output():
+                self.render_cameras()
+        return self.observe()
+
+    def _build_table(self) -> None:
+        # The floor is a thick box (a collision-only GEOM_PLANE crashes the EGL plugin) with a tiny
+        # hidden visual: it is never inside the heightmap bounds, and drawing it would cost about
+        # 45 ms per CPU-rendered camera. The visual-only workspace quad covers the bounds.
+        c = self.client
+        col = p.createCollisionShape(p.GEOM_BOX, halfExtents=[2.0, 2.0, 0.05], physicsClientId=c)
+        hidden = p.createVisualShape(
+            p.GEOM_SPHERE, radius=1e-4, rgbaColor=[0, 0, 0, 0], visualFramePosition=[0, 0, -0.04], physicsClientId=c
+        )
+        floor = p.createMultiBody(0, col, hidden, [0, 0, -0.051], physicsClientId=c)
+        p.changeDynamics(floor, -1, lateralFriction=0.5, physicsClientId=c)
+        (x0, x1), (y0, y1) = self.bounds[0], self.bounds[1]
+        centre = ((x0 + x1) / 2, (y0 + y1) / 2, -0.0005)
+        shapes.box(c, (x1 - x0, y1 - y0, 0.001), (centre, (0, 0, 0, 1)), color=(0.2, 0.2, 0.2), mass=0.0, collide=False)
+
+    # ------------------------------------------------------------------ acting
+    def step(self, action: dict[str, Any] | None) -> tuple[dict[str, Any], float, bool, dict[str, Any]]:
+        """Execute one primitive; returns (observation, reward, done, info).
+
+        ``info`` holds ``lang_goal`` (the task's current instruction, or None), ``steps``,
+        ``grasped``, ``reached`` (the motion finished within its step budgets) and the task's own info.
+        """
+        if self.robot is None:
+            raise RuntimeError("call reset(seed) before step()")
+        motion = {"grasped": False, "reached": True}
+        if action is not None:
+            pose0, pose1 = validate_action(action, self.bounds)
+            primitive = self.task.primitive if self.task is not None else "pick_place"
+            if primitive == "push":
+                settings = self.task.primitive_settings if self.task is not None else PushSettings()
+                motion = push(self.robot, pose0, pose1, settings)
+            else:
+                settings = self.task.primitive_settings if self.task is not None else PickPlaceSettings()
+                motion = pick_place(self.robot, self.ee, pose0, pose1, settings)
+            self.robot.movej(self.robot.home, budget=2400)
+        self.settle()
+        self.steps += 1
+        reward, task_info = (0.0, {})
+        done = False
+        if self.task is not None:
+            reward, task_info = self.task.reward()
+            done = self.task.done() or self.steps >= self.task.max_steps
+        info = {"lang_goal": self.lang_goal, "steps": self.steps, **motion, **task_info}
+        return self.observe(), float(reward), bool(done), info
+
+    @property
+    def lang_goal(self) -> str | None:
+        return self.task.lang_goal if self.task is not None else None
+
+    def settle(self) -> bool:
+        """Step until every movable object is slower than ``settle_speed``; False if the cap was hit."""
+        bodies = self.objects["rigid"] + self.objects["deformable"]
+        for _ in range(self.config.settle_max_steps):
+            if all(
+                np.linalg.norm(p.getBaseVelocity(b, physicsClientId=self.client)[0]) < self.config.settle_speed
+                for b in bodies
+            ):
+                return True
+            p.stepSimulation(physicsClientId=self.client)
+        return False
+
+    # ------------------------------------------------------------------ sensing
+    def render_cameras(self) -> list[dict[str, np.ndarray]]:
+        """Colour (H, W, 3) uint8 and depth (H, W) float32 from each of the three cameras."""
+        out = []
+        for cfg in self.camera_configs:
+            color, depth, _ = cameras.render(cfg, self.client, self.renderer)
+            out.append({"color": color, "depth": depth})
+        return out
+
+    def observe(self, raw_images: bool | None = None) -> dict[str, Any]:
+        """The fused top-down observation (and the raw camera images when asked)."""
+        images = self.render_cameras()
+        heights, colors, seens = [], [], []
+        for cfg, img in zip(self.camera_configs, images, strict=True):
+            points = heightmap.pointcloud_from_depth(img["depth"], cfg.K)
+            points = heightmap.transform_points(points, cameras.camera_rotation(cfg), np.asarray(cfg.position))
+            h, c, s = heightmap.project_to_heightmap(points, img["color"], self.bounds, self.pixel_size)
+            heights.append(h)
+            colors.append(c)
+            seens.append(s)
+        color, height = heightmap.fuse_heightmaps(heights, colors, seens)
+        obs: dict[str, Any] = {"color": color, "height": height}
+        if self.config.raw_images if raw_images is None else raw_images:
+            obs["cameras"] = images
+        return obs
+
+    def render_oracle(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Colour, depth and body-id segmentation from the near-orthographic camera above (task code only)."""
+        color, depth, seg = cameras.render(cameras.oracle_camera(), self.client, self.renderer, segmentation=True)
+        assert seg is not None
+        return color, depth, seg
+
+    def close(self) -> None:
+        if p.isConnected(self.client):
+            with _quiet_native_output():
+                p.disconnect(self.client)
+        shutil.rmtree(self._asset_dir, ignore_errors=True)
+
+    def __enter__(self) -> Environment:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _as_pose(value: Any, name: str) -> Pose:
+    try:
+        pos, quat = value
+        pos = np.asarray(pos, dtype=float)
+        quat = np.asarray(quat, dtype=float)
+    except (TypeError, ValueError) as e:
+        raise ActionError(f"{name} must be a pair (xyz, quat_xyzw), got {value!r}") from e
+    if pos.shape != (3,):
+        raise ActionError(f"{name} position must have 3 values, got shape {pos.shape}")
+    if quat.shape != (4,):
+        raise ActionError(f"{name} quaternion must have 4 values (x, y, z, w), got shape {quat.shape}")
+    if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(quat))):
+        raise ActionError(f"{name} contains NaN or infinity: {pos.tolist()}, {quat.tolist()}")
+    norm = float(np.linalg.norm(quat))
+    if norm < 1e-6:
+        raise ActionError(f"{name} quaternion has zero length")
+    return tuple(pos.tolist()), tuple((quat / norm).tolist())  # type: ignore[return-value]
+
+
+def validate_action(action: Any, bounds: np.ndarray, margin: float = 0.01) -> tuple[Pose, Pose]:
+    """Check an action dict and return its two poses; raise ActionError naming the bad field."""
+    if not isinstance(action, dict):
+        raise ActionError(f"action must be a dict with 'pose0' and 'pose1', got {type(action).__name__}")
+    poses = []
+    for name in ("pose0", "pose1"):
+        if name not in action:
+            raise ActionError(f"action is missing {name!r}")
+        pose = _as_pose(action[name], name)
+        for axis, value, (lo, hi) in zip("xyz", pose[0], bounds, strict=True):
+            hi = hi + (0.1 if axis == "z" else 0.0)  # a held object may be placed on top of a stack
+            if not (lo - margin <= value <= hi + margin):
+                raise ActionError(f"{name} {axis}={value:.3f} is outside the workspace bounds [{lo:.3f}, {hi:.3f}]")
+        poses.append(pose)
+    return poses[0], poses[1]
+
+
+__all__ = ["ActionError", "EnvConfig", "Environment", "Task", "validate_action"]

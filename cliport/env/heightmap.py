@@ -1,0 +1,116 @@
+"""Top-down orthographic heightmaps fused from RGB-D cameras, and pixel <-> world conversions.
+
+Conventions: a heightmap has shape (rows, cols) = (320, 160) for the default bounds; row ``u`` runs
+along world y and column ``v`` along world x. Cell (u, v) is centred on
+``(x0 + v * s, y0 + u * s)``, the point ``pix_to_xyz`` returns, so that binning points, labelling
+actions (``xyz_to_pix``) and executing them (``pix_to_xyz``) all agree to the pixel.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+# Workspace bounds [[x0, x1], [y0, y1], [z0, z1]] in metres and the heightmap pixel size.
+BOUNDS = np.array([[0.25, 0.75], [-0.5, 0.5], [0.0, 0.28]])
+PIXEL_SIZE = 0.003125
+
+
+def heightmap_shape(bounds: np.ndarray = BOUNDS, pixel_size: float = PIXEL_SIZE) -> tuple[int, int]:
+    """(rows, cols) of the heightmap covering ``bounds``: rows along y, columns along x."""
+    rows = int(round((bounds[1, 1] - bounds[1, 0]) / pixel_size))
+    cols = int(round((bounds[0, 1] - bounds[0, 0]) / pixel_size))
+    return rows, cols
+
+
+def pointcloud_from_depth(depth: np.ndarray, intrinsics: np.ndarray) -> np.ndarray:
+    """Back-project a (H, W) depth image with 3x3 intrinsics into (H, W, 3) camera-frame points."""
+    h, w = depth.shape
+    fx, fy, cx, cy = intrinsics[0, 0], intrinsics[1, 1], intrinsics[0, 2], intrinsics[1, 2]
+    px = np.arange(w, dtype=np.float32)[None, :]
+    py = np.arange(h, dtype=np.float32)[:, None]
+    x = (px - cx) * depth / fx
+    y = (py - cy) * depth / fy
+    return np.stack([x, np.broadcast_to(y, depth.shape) * 1.0, depth], axis=-1).astype(np.float32)
+
+
+def transform_points(points: np.ndarray, rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
+    """Apply x -> R x + t to an (..., 3) array of points."""
+    return points @ rotation.T.astype(np.float32) + translation.astype(np.float32)
+
+
+def project_to_heightmap(
+    points: np.ndarray,
+    colors: np.ndarray,
+    bounds: np.ndarray = BOUNDS,
+    pixel_size: float = PIXEL_SIZE,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Orthographically project world points onto the xy grid; the highest point wins each cell.
+
+    Args:
+        points: (N, 3) or (H, W, 3) world-frame points.
+        colors: matching (N, 3) or (H, W, 3) uint8 colours.
+    Returns:
+        height (rows, cols) float32 above ``z0`` (0 where unseen), color (rows, cols, 3) uint8,
+        seen (rows, cols) bool: whether any point fell in the cell.
+    """
+    rows, cols = heightmap_shape(bounds, pixel_size)
+    pts = points.reshape(-1, 3)
+    col = colors.reshape(-1, 3)
+    v = np.round((pts[:, 0] - bounds[0, 0]) / pixel_size).astype(np.int64)
+    u = np.round((pts[:, 1] - bounds[1, 0]) / pixel_size).astype(np.int64)
+    z = pts[:, 2] - bounds[2, 0]
+    keep = (v >= 0) & (v < cols) & (u >= 0) & (u < rows) & (z >= 0) & (z < bounds[2, 1] - bounds[2, 0])
+    cell = u[keep] * cols + v[keep]
+    z = z[keep]
+    col = col[keep]
+    order = np.lexsort((z, cell))
+    cell, z, col = cell[order], z[order], col[order]
+    last = np.ones(cell.shape, dtype=bool)
+    last[:-1] = cell[1:] != cell[:-1]
+    height = np.zeros(rows * cols, dtype=np.float32)
+    color = np.zeros((rows * cols, 3), dtype=np.uint8)
+    seen = np.zeros(rows * cols, dtype=bool)
+    height[cell[last]] = z[last]
+    color[cell[last]] = col[last]
+    seen[cell[last]] = True
+    return height.reshape(rows, cols), color.reshape(rows, cols, 3), seen.reshape(rows, cols)
+
+
+def fuse_heightmaps(
+    heights: list[np.ndarray], colors: list[np.ndarray], seens: list[np.ndarray]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Fuse per-camera heightmaps: height = max over cameras, colour = mean over cameras that see the cell.
+
+    Returns (color (rows, cols, 3) uint8, height (rows, cols) float32).
+    """
+    height = np.max(np.stack(heights), axis=0)
+    seen = np.stack(seens).astype(np.float32)[..., None]
+    total = np.sum(np.stack(colors).astype(np.float32) * seen, axis=0)
+    count = np.maximum(np.sum(seen, axis=0), 1.0)
+    color = np.round(total / count).astype(np.uint8)
+    return color, height.astype(np.float32)
+
+
+def pix_to_xyz(
+    pix: tuple[int, int],
+    height: np.ndarray | float,
+    bounds: np.ndarray = BOUNDS,
+    pixel_size: float = PIXEL_SIZE,
+) -> tuple[float, float, float]:
+    """World (x, y, z) of heightmap pixel (u, v); ``height`` is the heightmap or the height there."""
+    u, v = int(pix[0]), int(pix[1])
+    h = float(height[u, v]) if isinstance(height, np.ndarray) else float(height)
+    return (
+        float(bounds[0, 0] + v * pixel_size),
+        float(bounds[1, 0] + u * pixel_size),
+        float(bounds[2, 0] + h),
+    )
+
+
+def xyz_to_pix(
+    position: tuple[float, ...] | np.ndarray, bounds: np.ndarray = BOUNDS, pixel_size: float = PIXEL_SIZE
+) -> tuple[int, int]:
+    """Heightmap pixel (u, v) of world position (x, y[, z]) (rounded to the nearest cell)."""
+    u = int(np.round((position[1] - bounds[1, 0]) / pixel_size))
+    v = int(np.round((position[0] - bounds[0, 0]) / pixel_size))
+    return u, v

@@ -1,0 +1,89 @@
+"""Motion primitives: suction pick-and-place and spatula push, built on the arm's movep."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from cliport.env.transforms import Pose, multiply, yaw_to_quat
+
+
+@dataclass(frozen=True)
+class PickPlaceSettings:
+    height: float = 0.32  # approach / retreat height above the pick and place poses (m)
+    speed: float = 0.01  # joint step per simulation step (rad)
+    descend_step: float = 0.001  # descent per move while looking for contact (m)
+    max_descent: float = 0.4  # give up looking for contact after this much descent (m)
+
+
+def _descend_until_contact(robot, ee, start: Pose, settings: PickPlaceSettings) -> bool:
+    """Lower the tool from ``start`` in small moves until the end effector touches something."""
+    target = start
+    delta = ((0.0, 0.0, -settings.descend_step), (0.0, 0.0, 0.0, 1.0))
+    for _ in range(int(settings.max_descent / settings.descend_step)):
+        if ee.detect_contact():
+            return True
+        target = multiply(target, delta)
+        if not robot.movep(target, settings.speed, budget=200):
+            return ee.detect_contact()
+    return ee.detect_contact()
+
+
+def pick_place(robot, ee, pose0: Pose, pose1: Pose, settings: PickPlaceSettings = PickPlaceSettings()) -> dict:
+    """Pick at ``pose0`` with suction and place at ``pose1``.
+
+    Returns a dict: ``grasped`` (whether suction held an object after lifting) and ``reached``
+    (whether every move finished within its step budget).
+    """
+    above = ((0.0, 0.0, settings.height), (0.0, 0.0, 0.0, 1.0))
+    prepick = multiply(pose0, above)
+    reached = robot.movep(prepick, settings.speed)
+    reached &= _descend_until_contact(robot, ee, prepick, settings)
+    ee.activate()
+    reached &= robot.movep(prepick, settings.speed)
+    grasped = ee.check_grasp()
+    if grasped:
+        preplace = multiply(pose1, above)
+        reached &= robot.movep(preplace, settings.speed)
+        reached &= _descend_until_contact(robot, ee, preplace, settings)
+        ee.release()
+        reached &= robot.movep(preplace, settings.speed)
+    else:
+        ee.release()
+    return {"grasped": grasped, "reached": bool(reached)}
+
+
+@dataclass(frozen=True)
+class PushSettings:
+    height: float = 0.31  # approach height (m)
+    push_z: float = 0.005  # blade height above the table while pushing (m)
+    speed: float = 0.01
+    stride: float = 0.01  # distance per move while pushing (m)
+
+
+def push(robot, pose0: Pose, pose1: Pose, settings: PushSettings = PushSettings()) -> dict:
+    """Push with the spatula from ``pose0`` to ``pose1`` (only their xy matter).
+
+    The blade faces the push direction d (yaw = atan2(d)), starts 2 cm behind the start point and
+    stops 5 cm short of the end point, at ``push_z`` above the table.
+    """
+    p0 = np.array(pose0[0][:2], dtype=float)
+    p1 = np.array(pose1[0][:2], dtype=float)
+    d = p1 - p0
+    length = float(np.linalg.norm(d))
+    if length < 1e-6:
+        return {"grasped": False, "reached": True}
+    d /= length
+    start = p0 - 0.02 * d
+    end = p1 - 0.05 * d
+    quat = yaw_to_quat(float(np.arctan2(d[1], d[0])))
+    z = settings.push_z
+    reached = robot.movep(((start[0], start[1], settings.height), quat), settings.speed)
+    reached &= robot.movep(((start[0], start[1], z), quat), settings.speed)
+    n = max(int(np.floor(np.linalg.norm(end - start) / settings.stride)), 1)
+    for t in np.linspace(0.0, 1.0, n + 1)[1:]:
+        point = start + t * (end - start)
+        reached &= robot.movep(((point[0], point[1], z), quat), settings.speed, budget=400)
+    reached &= robot.movep(((end[0], end[1], settings.height), quat), settings.speed)
+    return {"grasped": False, "reached": bool(reached)}

@@ -1,0 +1,112 @@
+"""UR5 arm control: inverse kinematics and joint-space motion with budgets in simulation steps."""
+
+from __future__ import annotations
+
+import numpy as np
+import pybullet as p
+
+from cliport.env import urdf
+from cliport.env.transforms import Pose
+
+
+class UR5:
+    """A UR5 with a suction cup or spatula; joint motion toward IK targets, stepped in simulation."""
+
+    def __init__(self, client: int, end_effector: str, urdf_dir: str, joint_tolerance: float = 1e-3):
+        self.client = client
+        self.end_effector = end_effector
+        path = urdf.write_urdf(urdf.ur5_urdf(end_effector), f"ur5_{end_effector}", urdf_dir)
+        self.body = p.loadURDF(path, (0, 0, 0), useFixedBase=True, physicsClientId=client)
+        joints = {}
+        links = {}
+        for i in range(p.getNumJoints(self.body, physicsClientId=client)):
+            info = p.getJointInfo(self.body, i, physicsClientId=client)
+            joints[info[1].decode()] = i
+            links[info[12].decode()] = i
+        self.joints = [joints[name] for name in urdf.ARM_JOINTS]
+        self.tip_link = links[urdf.TIP_LINK]
+        self.tool_frame_link = links["tool_frame"]
+        self.home = np.array(urdf.HOME_JOINTS)
+        self.joint_tolerance = joint_tolerance
+        self.steps_taken = 0  # simulation steps spent moving since the last reset_counter()
+        self.reset_joints(self.home)
+
+    def reset_joints(self, q: np.ndarray) -> None:
+        for j, qi in zip(self.joints, q, strict=True):
+            p.resetJointState(self.body, j, float(qi), physicsClientId=self.client)
+        p.setJointMotorControlArray(
+            self.body, self.joints, p.POSITION_CONTROL, targetPositions=list(q), physicsClientId=self.client
+        )
+
+    def joint_positions(self) -> np.ndarray:
+        states = p.getJointStates(self.body, self.joints, physicsClientId=self.client)
+        return np.array([s[0] for s in states])
+
+    def tool_pose(self) -> Pose:
+        """World pose of the tool frame (the point that IK targets)."""
+        s = p.getLinkState(self.body, self.tool_frame_link, computeForwardKinematics=True, physicsClientId=self.client)
+        return tuple(s[4]), tuple(s[5])  # type: ignore[return-value]
+
+    def tip_pose(self) -> Pose:
+        """World pose of the tool tip: 0.12 m past the flange, the contact point."""
+        s = p.getLinkState(self.body, self.tip_link, computeForwardKinematics=True, physicsClientId=self.client)
+        return tuple(s[4]), tuple(s[5])  # type: ignore[return-value]
+
+    def solve_ik(self, pose: Pose, refinements: int = 5, tolerance: float = 2e-4) -> np.ndarray:
+        """Joint angles that put the tool tip at ``pose`` (solved once per move).
+
+        PyBullet's damped-least-squares IK starts from the current joint state, so solutions stay in
+        the arm's current (elbow-up) family; its null-space variant with joint limits was measured
+        to stop 1-16 mm short, so the plain solver is used. Near the edge of reach it can still
+        stop short, so the solve is repeated from its own answer (joints set only virtually, then
+        restored with their velocities) until the tip is within ``tolerance``.
+        """
+        saved = p.getJointStates(self.body, self.joints, physicsClientId=self.client)
+        q = self.joint_positions()
+        try:
+            for _ in range(refinements):
+                q = np.array(
+                    p.calculateInverseKinematics(
+                        self.body,
+                        self.tip_link,
+                        targetPosition=pose[0],
+                        targetOrientation=pose[1],
+                        maxNumIterations=1000,
+                        residualThreshold=1e-6,
+                        physicsClientId=self.client,
+                    )[: len(self.joints)]
+                )
+                for j, qi in zip(self.joints, q, strict=True):
+                    p.resetJointState(self.body, j, float(qi), physicsClientId=self.client)
+                if np.linalg.norm(np.subtract(self.tip_pose()[0], pose[0])) < tolerance:
+                    break
+        finally:
+            for j, s in zip(self.joints, saved, strict=True):
+                p.resetJointState(self.body, j, s[0], targetVelocity=s[1], physicsClientId=self.client)
+        q[2:] = (q[2:] + np.pi) % (2 * np.pi) - np.pi
+        return q
+
+    def movej(self, target: np.ndarray, speed: float = 0.01, budget: int = 2400) -> bool:
+        """Step toward joint target ``target`` by at most ``speed`` rad per step; False if over budget."""
+        for _ in range(budget):
+            current = self.joint_positions()
+            diff = target - current
+            if np.all(np.abs(diff) < self.joint_tolerance):
+                return True
+            norm = float(np.linalg.norm(diff))
+            step = current + diff / norm * min(speed, norm)
+            p.setJointMotorControlArray(
+                self.body,
+                self.joints,
+                p.POSITION_CONTROL,
+                targetPositions=list(step),
+                positionGains=[1.0] * len(self.joints),
+                physicsClientId=self.client,
+            )
+            p.stepSimulation(physicsClientId=self.client)
+            self.steps_taken += 1
+        return False
+
+    def movep(self, pose: Pose, speed: float = 0.01, budget: int = 2400) -> bool:
+        """Move the tool tip to a world pose (IK once, then joint-space motion)."""
+        return self.movej(self.solve_ik(pose), speed, budget)

@@ -1,0 +1,1 @@
+"""Default settings (TOML files) for the workcell, demos, agents, training and evaluation."""

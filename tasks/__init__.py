@@ -1,0 +1,1 @@
+"""Task definitions, one module per task family, found through a registry by name."""
