@@ -1,1 +1,82 @@
-"""Task definitions, one module per task family, found through a registry by name."""
+"""Task definitions, one module per task family, found through a registry by name.
+
+Add a task by adding a module to this package that defines a ``Task`` subclass decorated with
+``@register("my-task")``; ``make("my-task", mode)`` then builds it. Multi-task groups are named
+lists of tasks (``group("multi-language-conditioned")``).
+"""
+
+from __future__ import annotations
+
+import difflib
+import importlib
+import pkgutil
+
+from cliport.tasks.base import GoalStep, Task
+
+_REGISTRY: dict[str, type[Task]] = {}
+_GROUPS: dict[str, list[str]] = {}
+_discovered = False
+
+
+def register(name: str):
+    """Class decorator: make a Task subclass available as ``make(name)``."""
+
+    def wrap(cls: type[Task]) -> type[Task]:
+        if name in _REGISTRY and _REGISTRY[name] is not cls:
+            raise ValueError(f"task name {name!r} is registered twice")
+        _REGISTRY[name] = cls
+        return cls
+
+    return wrap
+
+
+def register_group(name: str, members: list[str]) -> None:
+    """Name a list of tasks (a multi-task group) usable wherever a task name is."""
+    _GROUPS[name] = list(members)
+
+
+def _discover() -> None:
+    global _discovered
+    if _discovered:
+        return
+    for info in pkgutil.iter_modules(__path__):
+        if info.name not in ("base",) and not info.name.startswith("_"):
+            importlib.import_module(f"{__name__}.{info.name}")
+    _discovered = True
+
+
+def names() -> list[str]:
+    """All registered task names, sorted."""
+    _discover()
+    return sorted(_REGISTRY)
+
+
+def groups() -> dict[str, list[str]]:
+    """All multi-task groups by name."""
+    _discover()
+    return {k: list(v) for k, v in _GROUPS.items()}
+
+
+def resolve(name: str) -> list[str]:
+    """The task names a task or group name stands for; a clear error for an unknown name."""
+    _discover()
+    if name in _REGISTRY:
+        return [name]
+    if name in _GROUPS:
+        return list(_GROUPS[name])
+    close = difflib.get_close_matches(name, list(_REGISTRY) + list(_GROUPS), n=3)
+    hint = f" (did you mean {', '.join(close)}?)" if close else ""
+    raise KeyError(f"unknown task {name!r}{hint}; `cliport-tasks` lists them")
+
+
+def make(name: str, mode: str = "train") -> Task:
+    """A fresh task instance by name; ``mode`` ('train', 'val', 'test') selects its split."""
+    resolved = resolve(name)
+    if name not in _REGISTRY:
+        raise KeyError(f"{name!r} is a multi-task group, not a single task: {', '.join(resolved)}")
+    task = _REGISTRY[name](mode=mode)
+    task.name = name
+    return task
+
+
+__all__ = ["GoalStep", "Task", "groups", "make", "names", "register", "register_group", "resolve"]

@@ -100,7 +100,7 @@ class Environment:
         if self.config.camera_scale <= 0:
             raise ValueError(f"camera_scale must be positive, got {self.config.camera_scale}")
         self.client = p.connect(p.DIRECT)
-        self._asset_dir = tempfile.mkdtemp(prefix="cliport-assets-")
+        self.asset_dir = tempfile.mkdtemp(prefix="cliport-assets-")
         self.renderer, self.renderer_name = self._choose_renderer(self.config.renderer)
         log.info("rendering with %s", self.renderer_name)
         self.camera_configs = [c.scaled(self.config.camera_scale) for c in cameras.realsense_d415()]
@@ -151,7 +151,7 @@ class Environment:
         self.seed = seed
         self._build_table()
         end_effector = self.task.end_effector if self.task is not None else "suction"
-        self.robot = UR5(self.client, end_effector, self._asset_dir)
+        self.robot = UR5(self.client, end_effector, self.asset_dir)
         if end_effector == "suction":
             self.ee = Suction(self.client, self.robot.body, self.robot.tip_link, set())
         else:
@@ -162,8 +162,7 @@ class Environment:
         if self.renderer == p.ER_BULLET_HARDWARE_OPENGL:
             # The EGL plugin shades the first frame after a reset differently from every later one
             # (measured); render it once and discard it so that the same seed gives the same pixels.
-            with _quiet_native_output():
-                self.render_cameras()
+            self.render_cameras()
         return self.observe()
 
     def _build_table(self) -> None:
@@ -231,10 +230,15 @@ class Environment:
     def render_cameras(self) -> list[dict[str, np.ndarray]]:
         """Colour (H, W, 3) uint8 and depth (H, W) float32 from each of the three cameras."""
         out = []
-        for cfg in self.camera_configs:
-            color, depth, _ = cameras.render(cfg, self.client, self.renderer)
-            out.append({"color": color, "depth": depth})
+        with self._quiet():
+            for cfg in self.camera_configs:
+                color, depth, _ = cameras.render(cfg, self.client, self.renderer)
+                out.append({"color": color, "depth": depth})
         return out
+
+    def _quiet(self) -> contextlib.AbstractContextManager:
+        """The EGL plugin prints a banner on stdout at its first frames; keep it off the console."""
+        return _quiet_native_output() if self.renderer == p.ER_BULLET_HARDWARE_OPENGL else contextlib.nullcontext()
 
     def observe(self, raw_images: bool | None = None) -> dict[str, Any]:
         """The fused top-down observation (and the raw camera images when asked)."""
@@ -255,15 +259,28 @@ class Environment:
 
     def render_oracle(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Colour, depth and body-id segmentation from the near-orthographic camera above (task code only)."""
-        color, depth, seg = cameras.render(cameras.oracle_camera(), self.client, self.renderer, segmentation=True)
+        with self._quiet():
+            color, depth, seg = cameras.render(cameras.oracle_camera(), self.client, self.renderer, segmentation=True)
         assert seg is not None
         return color, depth, seg
+
+    def oracle_heightmap(self) -> tuple[np.ndarray, np.ndarray]:
+        """Top-down height (320, 160) float32 and body-id map (320, 160) int32 (-1 = nothing) seen
+        by the oracle camera: exact object masks for task code and scripted experts, never agents."""
+        cfg = cameras.oracle_camera()
+        _, depth, seg = self.render_oracle()
+        points = heightmap.pointcloud_from_depth(depth, cfg.K)
+        points = heightmap.transform_points(points, cameras.camera_rotation(cfg), np.asarray(cfg.position))
+        height, ids, seen = heightmap.project_to_heightmap(points, seg, self.bounds, self.pixel_size)
+        ids = ids[..., 0]
+        ids[~seen] = -1
+        return height, ids
 
     def close(self) -> None:
         if p.isConnected(self.client):
             with _quiet_native_output():
                 p.disconnect(self.client)
-        shutil.rmtree(self._asset_dir, ignore_errors=True)
+        shutil.rmtree(self.asset_dir, ignore_errors=True)
 
     def __enter__(self) -> Environment:
         return self

@@ -48,14 +48,16 @@ def project_to_heightmap(
 
     Args:
         points: (N, 3) or (H, W, 3) world-frame points.
-        colors: matching (N, 3) or (H, W, 3) uint8 colours.
+        colors: matching per-point values, (N, C) or (H, W, C) (uint8 colours, or e.g. int32
+            segmentation ids with C = 1), or (H, W) for one channel.
     Returns:
-        height (rows, cols) float32 above ``z0`` (0 where unseen), color (rows, cols, 3) uint8,
-        seen (rows, cols) bool: whether any point fell in the cell.
+        height (rows, cols) float32 above ``z0`` (0 where unseen), color (rows, cols, C) of the
+        values' dtype (0 where unseen), seen (rows, cols) bool: whether any point fell in the cell.
     """
     rows, cols = heightmap_shape(bounds, pixel_size)
     pts = points.reshape(-1, 3)
-    col = colors.reshape(-1, 3)
+    channels = 1 if colors.ndim == points.ndim - 1 else colors.shape[-1]
+    col = colors.reshape(-1, channels)
     v = np.round((pts[:, 0] - bounds[0, 0]) / pixel_size).astype(np.int64)
     u = np.round((pts[:, 1] - bounds[1, 0]) / pixel_size).astype(np.int64)
     z = pts[:, 2] - bounds[2, 0]
@@ -68,12 +70,12 @@ def project_to_heightmap(
     last = np.ones(cell.shape, dtype=bool)
     last[:-1] = cell[1:] != cell[:-1]
     height = np.zeros(rows * cols, dtype=np.float32)
-    color = np.zeros((rows * cols, 3), dtype=np.uint8)
+    color = np.zeros((rows * cols, channels), dtype=colors.dtype)
     seen = np.zeros(rows * cols, dtype=bool)
     height[cell[last]] = z[last]
     color[cell[last]] = col[last]
     seen[cell[last]] = True
-    return height.reshape(rows, cols), color.reshape(rows, cols, 3), seen.reshape(rows, cols)
+    return height.reshape(rows, cols), color.reshape(rows, cols, channels), seen.reshape(rows, cols)
 
 
 def fuse_heightmaps(

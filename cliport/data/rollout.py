@@ -1,0 +1,69 @@
+"""Run one episode of a task with any policy (the scripted oracle for demos, an agent for evaluation)."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from cliport.env.environment import Environment
+
+Policy = Callable[[dict[str, Any], dict[str, Any]], "dict[str, Any] | None"]
+
+
+@dataclass
+class Episode:
+    """What happened in one episode. ``steps`` holds, per action, the observation it was chosen
+    from, the action, the reward it earned and the instruction in force (when recorded)."""
+
+    task: str
+    seed: int
+    total_reward: float = 0.0
+    steps: list[dict[str, Any]] = field(default_factory=list)
+    n_actions: int = 0
+    done: bool = False
+    seconds: float = 0.0
+    final_observation: dict[str, Any] | None = None
+
+    @property
+    def success(self) -> bool:
+        return self.total_reward > 0.99
+
+
+def oracle_policy(env: Environment) -> Policy:
+    """The task's scripted expert as a policy."""
+
+    def act(obs: dict[str, Any], info: dict[str, Any]) -> dict[str, Any] | None:
+        return env.task.oracle_act(obs)  # type: ignore[union-attr]
+
+    return act
+
+
+def run_episode(env: Environment, seed: int, policy: Policy, record: bool = False) -> Episode:
+    """Reset ``env`` (its task already set) with ``seed`` and act until done or max steps."""
+    task = env.task
+    if task is None:
+        raise ValueError("the environment has no task; call env.set_task(task) first")
+    start = time.perf_counter()
+    obs = env.reset(seed)
+    info: dict[str, Any] = {"lang_goal": env.lang_goal}
+    episode = Episode(task=getattr(task, "name", type(task).__name__), seed=seed)
+    for _ in range(task.max_steps):
+        action = policy(obs, info)
+        if action is None:
+            break
+        lang_goal = info.get("lang_goal")
+        next_obs, reward, done, info = env.step(action)
+        if record:
+            episode.steps.append({"obs": obs, "action": action, "reward": reward, "lang_goal": lang_goal})
+        episode.total_reward += reward
+        episode.n_actions += 1
+        obs = next_obs
+        if done:
+            episode.done = True
+            break
+    if record:
+        episode.final_observation = obs
+    episode.seconds = time.perf_counter() - start
+    return episode
