@@ -1,0 +1,115 @@
+"""Reward bookkeeping of the shared goal machinery, tested on hand-placed objects."""
+
+import math
+
+import numpy as np
+import pybullet as p
+import pytest
+
+from cliport import tasks
+from cliport.env import shapes
+from cliport.env.environment import EnvConfig, Environment
+from cliport.env.transforms import yaw_to_quat
+from cliport.tasks.base import GoalStep, Task, folded_yaw_error
+
+
+class Scripted(Task):
+    """A task whose scene and goals the test sets up by hand."""
+
+    max_steps = 5
+
+    def reset(self, env, rng):
+        super().reset(env, rng)
+
+
+@pytest.fixture(scope="module")
+def env():
+    e = Environment(EnvConfig.defaults(camera_scale=0.5), task=Scripted())
+    yield e
+    e.close()
+
+
+def _block(env, xy, yaw=0.0, size=(0.04, 0.04, 0.04)):
+    pose = ((xy[0], xy[1], size[2] / 2), yaw_to_quat(yaw))
+    return env.add_object(shapes.box(env.client, size, pose, color=(200, 50, 50)))
+
+
+def _move(env, body, xy, yaw=0.0):
+    p.resetBasePositionAndOrientation(body, (xy[0], xy[1], 0.02), yaw_to_quat(yaw), physicsClientId=env.client)
+
+
+def test_folded_yaw_error():
+    assert folded_yaw_error(math.radians(95), 0.0, math.pi / 2) == pytest.approx(math.radians(5))
+    assert folded_yaw_error(math.radians(-170), math.radians(170), 2 * math.pi) == pytest.approx(math.radians(20))
+    assert folded_yaw_error(math.radians(181), 0.0, math.pi) == pytest.approx(math.radians(1))
+
+
+def test_partial_credit_banking_and_done(env):
+    env.reset(0)
+    task = env.task
+    a, b = _block(env, (0.4, 0.2)), _block(env, (0.4, -0.2))
+    targets = [((0.6, 0.2, 0.02), (0, 0, 0, 1)), ((0.6, -0.2, 0.02), (0, 0, 0, 1))]
+    task.add_goal(GoalStep([a, b], np.eye(2), targets, share=0.5))
+    c = _block(env, (0.3, 0.0))
+    task.add_goal(GoalStep([c], np.ones((1, 1)), [((0.5, 0.0, 0.02), (0, 0, 0, 1))], share=0.5))
+    assert task.reward()[0] == pytest.approx(0.0)
+    _move(env, a, (0.605, 0.2))  # within 1 cm
+    reward, info = task.reward()
+    assert reward == pytest.approx(0.25) and info["goal_steps_left"] == 2
+    assert task.reward()[0] == pytest.approx(0.0)  # rewards are deltas
+    _move(env, b, (0.6, -0.189))  # 1.1 cm away: not matched
+    assert task.reward()[0] == pytest.approx(0.0)
+    _move(env, b, (0.6, -0.205))
+    reward, info = task.reward()
+    assert reward == pytest.approx(0.25) and info["goal_steps_left"] == 1  # first step banked
+    _move(env, a, (0.4, 0.2))  # a banked step is not taken back
+    assert task.reward()[0] == pytest.approx(0.0) and not task.done()
+    _move(env, c, (0.5, 0.0))
+    reward, info = task.reward()
+    assert reward == pytest.approx(0.5) and info["total_reward"] == pytest.approx(1.0) and task.done()
+
+
+def test_symmetric_yaw_and_rotation_flag(env):
+    env.reset(0)
+    task = env.task
+    block = _block(env, (0.5, 0.1), yaw=math.radians(100))
+    target = [((0.5, 0.1, 0.02), (0, 0, 0, 1))]
+    step = GoalStep([block], np.ones((1, 1)), target, share=1.0, symmetries=[math.pi / 2], rotations=True)
+    assert task.is_match(step, 0, 0)  # 100 deg folds to 10 deg for a 90 deg symmetry
+    _move(env, block, (0.5, 0.1), yaw=math.radians(70))
+    assert not task.is_match(step, 0, 0)  # 20 deg off
+    step.symmetries = [0.0]
+    assert task.is_match(step, 0, 0)  # symmetry 0: yaw ignored
+    step.symmetries, step.rotations = [2 * math.pi], False
+    assert task.is_match(step, 0, 0)  # rotation does not matter for this step
+
+
+def test_targets_used_once_unless_replace(env):
+    env.reset(0)
+    task = env.task
+    a, b = _block(env, (0.5, 0.1)), _block(env, (0.5, 0.3))
+    target = [((0.5, 0.1, 0.02), (0, 0, 0, 1)), ((0.5, 0.3, 0.02), (0, 0, 0, 1))]
+    step = GoalStep([a, b], np.ones((2, 2)), target, share=1.0)
+    assert sorted(task.matched_pairs(step)) == [(0, 0), (1, 1)]
+    _move(env, b, (0.5, 0.105))  # b now sits on a's target (blocks overlap: metric only)
+    assert len(task.matched_pairs(step)) == 1
+    step.replace = True
+    assert len(task.matched_pairs(step)) == 2
+
+
+def test_zone_fraction(env):
+    env.reset(0)
+    task = env.task
+    body = _block(env, (0.5, 0.0), size=(0.08, 0.04, 0.04))  # 2 cm grid: 5 x 3 x 3 points
+    zone = (((0.52, 0.0, 0.0), (0, 0, 0, 1)), (0.08, 0.2, 0.0))  # covers x in (0.48, 0.56)
+    step = GoalStep([body], np.ones((1, 1)), [zone[0]], share=1.0, metric="zone", zones=[zone])
+    assert task.zone_fraction(step, body) == pytest.approx(3 / 5)
+    assert task.step_reward(step) == pytest.approx(3 / 5)
+
+
+def test_registry_errors():
+    assert "place-red-in-green" in tasks.names()
+    with pytest.raises(KeyError, match="did you mean place-red-in-green"):
+        tasks.make("place-red-in-gren")
+    with pytest.raises(ValueError, match="mode"):
+        tasks.make("place-red-in-green", mode="training")
