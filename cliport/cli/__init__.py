@@ -1,0 +1,1 @@
+"""Console scripts: cliport-demos, cliport-train, cliport-eval, cliport-tasks."""

@@ -1,0 +1,135 @@
+"""A torch Dataset of demonstration steps for training pick-and-place agents."""
+
+from __future__ import annotations
+
+import math
+import os
+from collections import OrderedDict
+from typing import Any
+
+import numpy as np
+import torch
+from torch.utils.data import Dataset
+
+from cliport.data import augment
+from cliport.data.episode_io import EpisodeData, load_episode
+from cliport.data.generate import dataset_dir, existing_seeds
+from cliport.env import heightmap as hm
+from cliport.env.transforms import quat_to_yaw
+
+
+class DatasetError(ValueError):
+    """The requested data is missing or unusable; the message names the path."""
+
+
+def rotation_bin(pose0_quat: np.ndarray, pose1_quat: np.ndarray, n_rotations: int) -> int:
+    """Bin of the relative yaw (place yaw - pick yaw); bin k <-> angle k * 2*pi / n_rotations."""
+    theta = (quat_to_yaw(pose1_quat) - quat_to_yaw(pose0_quat)) % (2 * math.pi)
+    return int(round(theta / (2 * math.pi / n_rotations))) % n_rotations
+
+
+class DemoDataset(Dataset):
+    """Steps of oracle episodes of one task or a multi-task group.
+
+    Each sample is a random step (index -> (episode, step); shuffle in the DataLoader) with the SE(2)
+    augmentation applied to the image and both action pixels:
+      color (320, 160, 3) uint8, height (320, 160) float32 metres, pick_pix (2,) int64 (row, col),
+      place_pix (2,) int64, place_rot () int64 rotation bin of place yaw - pick yaw, lang str,
+      task str.
+    ``n_demos`` episodes per task are a subset chosen with ``seed`` (the same seed, the same subset).
+    """
+
+    def __init__(
+        self,
+        data_dir: str,
+        task: str,
+        mode: str = "train",
+        n_demos: int | None = None,
+        seed: int = 0,
+        augment: bool = True,
+        n_rotations: int = 36,
+        cache_episodes: int = 128,
+    ):
+        from cliport import tasks
+
+        try:
+            names = tasks.resolve(task)
+        except KeyError as e:
+            raise DatasetError(e.args[0]) from e
+        self.augment = augment
+        self.n_rotations = n_rotations
+        self.cache_episodes = cache_episodes
+        self.files: list[tuple[str, str]] = []  # (task, path)
+        for name in names:
+            folder = dataset_dir(data_dir, name, mode)
+            if not os.path.isdir(folder):
+                raise DatasetError(
+                    f"no demonstrations for {name} ({mode}) in {folder}: run "
+                    f"`cliport-demos --task {name} --mode {mode} --n N --data-dir {data_dir}`"
+                )
+            seeds = existing_seeds(folder)
+            if n_demos is not None:
+                if n_demos < 1:
+                    raise DatasetError(f"n_demos must be >= 1, got {n_demos}")
+                if n_demos > len(seeds):
+                    raise DatasetError(f"{folder} has {len(seeds)} episodes but n_demos={n_demos} were asked for")
+                pick = np.random.default_rng(seed).choice(len(seeds), size=n_demos, replace=False)
+                seeds = [seeds[i] for i in sorted(pick)]
+            elif not seeds:
+                raise DatasetError(f"{folder} holds no episodes")
+            self.files += [(name, os.path.join(folder, f"{s:06d}.npz")) for s in seeds]
+        self.index: list[tuple[int, int]] = []
+        for e, (_, path) in enumerate(self.files):
+            self.index += [(e, t) for t in range(_episode_length(path))]
+        self._cache: OrderedDict[int, EpisodeData] = OrderedDict()
+        self._rng: np.random.Generator | None = None
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+    def episode(self, e: int) -> EpisodeData:
+        if e in self._cache:
+            self._cache.move_to_end(e)
+            return self._cache[e]
+        data = load_episode(self.files[e][1])
+        self._cache[e] = data
+        if len(self._cache) > self.cache_episodes:
+            self._cache.popitem(last=False)
+        return data
+
+    def _generator(self) -> np.random.Generator:
+        # Seeded from torch so that DataLoader workers differ and torch.manual_seed reproduces a run.
+        if self._rng is None:
+            self._rng = np.random.default_rng(torch.initial_seed() % 2**63)
+        return self._rng
+
+    def __getitem__(self, i: int) -> dict[str, Any]:
+        e, t = self.index[i]
+        ep = self.episode(e)
+        color, height = ep.color[t], ep.height[t]
+        pick = hm.xyz_to_pix(ep.pose0[t, :3])
+        place = hm.xyz_to_pix(ep.pose1[t, :3])
+        if self.augment:
+            m = augment.sample_se2(self._generator(), height.shape, [pick, place])
+            color, height = augment.warp(color, m), augment.warp(height, m)
+            pick, place = augment.transform_pixel(m, pick), augment.transform_pixel(m, place)
+        return {
+            "color": np.ascontiguousarray(color),
+            "height": np.ascontiguousarray(height, dtype=np.float32),
+            "pick_pix": np.array(pick, dtype=np.int64),
+            "place_pix": np.array(place, dtype=np.int64),
+            "place_rot": np.int64(rotation_bin(ep.pose0[t, 3:], ep.pose1[t, 3:], self.n_rotations)),
+            "lang": ep.lang_goal[t],
+            "task": self.files[e][0],
+        }
+
+
+def _episode_length(path: str) -> int:
+    """Number of steps of an episode file, read from the small reward array only."""
+    import zipfile
+
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return int(len(z["reward"]))
+    except (zipfile.BadZipFile, KeyError, ValueError, OSError, EOFError) as e:
+        raise DatasetError(f"corrupt episode file {path}: {e}") from e

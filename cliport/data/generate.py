@@ -1,0 +1,231 @@
+"""Demonstration generation: run a task's oracle over the seed protocol in parallel, save successes.
+
+Episodes land in ``DATA_DIR/<task>-<mode>/<seed:06d>.npz``. The dataset of N episodes is the first
+N seeds (in protocol order) whose oracle episode succeeds; failed seeds are skipped and recorded.
+Re-running the same command resumes: finished episodes are kept and known failures not retried.
+With ``shard=(i, k)`` this process takes every k-th seed starting at index i and aims for its share
+of N, so k machines can fill one shared folder.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import glob
+import json
+import multiprocessing as mp
+import os
+import re
+import time
+from dataclasses import dataclass
+from typing import Any
+
+from tqdm import tqdm
+
+from cliport import __version__
+from cliport.data.episode_io import save_episode
+from cliport.data.seeds import episode_seeds
+from cliport.utils.config import build, read_defaults
+
+
+@dataclass
+class DemoConfig:
+    data_dir: str
+    workers: int
+    camera_scale: float
+    raw_images: bool
+    max_failures: int
+
+    @classmethod
+    def defaults(cls, **overrides: Any) -> DemoConfig:
+        return build(cls, read_defaults("demos"), **overrides)
+
+
+class GenerationError(RuntimeError):
+    """Demonstration generation cannot go on (e.g. the oracle keeps failing)."""
+
+
+def dataset_dir(data_dir: str, task: str, mode: str) -> str:
+    return os.path.join(data_dir, f"{task}-{mode}")
+
+
+def episode_path(folder: str, seed: int) -> str:
+    return os.path.join(folder, f"{seed:06d}.npz")
+
+
+def existing_seeds(folder: str) -> list[int]:
+    """Seeds of the finished episode files in a dataset folder, sorted."""
+    return sorted(int(m.group(1)) for f in os.listdir(folder) if (m := re.fullmatch(r"(\d{6})\.npz", f)))
+
+
+def _write_json(path: str, data: Any) -> None:
+    tmp = f"{path}.tmp-{os.getpid()}"
+    with open(tmp, "w") as f:
+        json.dump(data, f, indent=2)
+    os.replace(tmp, path)
+
+
+# ---------------------------------------------------------------------- worker side
+_ENV = None
+
+
+def _worker_init(task_name: str, mode: str, camera_scale: float, raw_images: bool) -> None:
+    global _ENV
+    from cliport import tasks
+    from cliport.env.environment import EnvConfig, Environment
+
+    _ENV = Environment(
+        EnvConfig.defaults(camera_scale=camera_scale, raw_images=raw_images), task=tasks.make(task_name, mode)
+    )
+
+
+def _worker_run(seed: int, path: str, meta: dict[str, Any], raw_images: bool) -> dict[str, Any]:
+    from cliport.data.rollout import oracle_policy, run_episode
+
+    assert _ENV is not None
+    episode = run_episode(_ENV, seed, oracle_policy(_ENV), record=True)
+    result = {
+        "seed": seed,
+        "success": episode.success,
+        "total_reward": episode.total_reward,
+        "steps": episode.n_actions,
+    }
+    if episode.success:
+        meta = {**meta, "seed": seed, "total_reward": episode.total_reward, "n_steps": episode.n_actions}
+        result["bytes"] = save_episode(path, episode.steps, meta, raw_images=raw_images)
+    return result
+
+
+# ---------------------------------------------------------------------- driver
+def generate(
+    task: str,
+    mode: str,
+    n: int,
+    config: DemoConfig | None = None,
+    shard: tuple[int, int] = (0, 1),
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Generate ``n`` successful oracle episodes (this shard's share of them); returns the summary."""
+    from cliport import tasks
+
+    config = config or DemoConfig.defaults()
+    tasks.make(task, mode)  # fail fast on an unknown task or mode
+    index, count = shard
+    if not (count >= 1 and 0 <= index < count):
+        raise ValueError(f"shard must be I/K with 0 <= I < K, got {index}/{count}")
+    if n < 0:
+        raise ValueError(f"n must be >= 0, got {n}")
+    if config.workers < 1:
+        raise ValueError(f"workers must be >= 1, got {config.workers}")
+    target = n // count + (1 if index < n % count else 0)
+    folder = dataset_dir(config.data_dir, task, mode)
+    os.makedirs(folder, exist_ok=True)
+    for stale in glob.glob(os.path.join(folder, "*.tmp-*")):
+        os.remove(stale)
+    suffix = "" if count == 1 else f"-shard{index}of{count}"
+    failures_path = os.path.join(folder, f"failed_seeds{suffix}.json")
+    known_failures: dict[int, float] = {}
+    if os.path.exists(failures_path):
+        with open(failures_path) as f:
+            known_failures = {int(k): v for k, v in json.load(f).items()}
+
+    done = set(existing_seeds(folder))
+    meta = {"task": task, "mode": mode, "cliport_version": __version__, "camera_scale": config.camera_scale}
+
+    def seed_stream():
+        i = index
+        while True:
+            yield episode_seeds(mode, 1, i)[0]
+            i += count
+
+    stream = seed_stream()
+    saved_before = 0
+    new_failures: dict[int, float] = {}
+    n_saved, n_bytes, n_steps = 0, 0, 0
+    start = time.perf_counter()
+    bar = tqdm(total=target, desc=f"{task}-{mode}", disable=not progress, unit="demo")
+
+    def next_seed() -> int | None:
+        nonlocal saved_before
+        for seed in stream:
+            if seed in done:
+                saved_before += 1
+                bar.update(1)
+                if saved_before + n_saved >= target:
+                    return None
+                continue
+            if seed in known_failures:
+                continue
+            return seed
+        return None
+
+    def record(result: dict[str, Any]) -> None:
+        nonlocal n_saved, n_bytes, n_steps
+        if result["success"]:
+            n_saved += 1
+            n_bytes += result["bytes"]
+            n_steps += result["steps"]
+            bar.update(1)
+        else:
+            new_failures[result["seed"]] = round(result["total_reward"], 4)
+            _write_json(failures_path, {str(k): v for k, v in sorted({**known_failures, **new_failures}.items())})
+            if len(new_failures) > config.max_failures:
+                raise GenerationError(
+                    f"the {task} oracle failed on {len(new_failures)} seeds in this run (limit max_failures="
+                    f"{config.max_failures}); see {failures_path}"
+                )
+
+    init_args = (task, mode, config.camera_scale, config.raw_images)
+    try:
+        if target > 0 and config.workers == 1:
+            _worker_init(*init_args)
+            while saved_before + n_saved < target and (seed := next_seed()) is not None:
+                record(_worker_run(seed, episode_path(folder, seed), meta, config.raw_images))
+        elif target > 0:
+            ctx = mp.get_context("spawn")
+            with cf.ProcessPoolExecutor(
+                config.workers, mp_context=ctx, initializer=_worker_init, initargs=init_args
+            ) as pool:
+                pending: set[cf.Future] = set()
+                exhausted = False
+                while True:
+                    while (
+                        not exhausted
+                        and saved_before + n_saved + len(pending) < target
+                        and len(pending) < config.workers
+                    ):
+                        seed = next_seed()
+                        if seed is None:
+                            exhausted = True
+                            break
+                        pending.add(pool.submit(_worker_run, seed, episode_path(folder, seed), meta, config.raw_images))
+                    if not pending:
+                        break
+                    finished, pending = cf.wait(pending, return_when=cf.FIRST_COMPLETED)
+                    for future in finished:
+                        record(future.result())
+    finally:
+        bar.close()
+        global _ENV
+        if _ENV is not None:
+            _ENV.close()
+            _ENV = None
+    seconds = time.perf_counter() - start
+    summary = {
+        "task": task,
+        "mode": mode,
+        "shard": f"{index}/{count}",
+        "target": target,
+        "saved": n_saved,
+        "skipped_existing": saved_before,
+        "total_in_folder": len(existing_seeds(folder)),
+        "failed_seeds": sorted(new_failures),
+        "known_failed_seeds_skipped": len(known_failures),
+        "seconds": round(seconds, 1),
+        "demos_per_minute": round(n_saved / seconds * 60, 2) if n_saved else 0.0,
+        "mb_per_step": round(n_bytes / n_steps / 1e6, 4) if n_steps else None,
+        "workers": config.workers,
+        "camera_scale": config.camera_scale,
+        "cliport_version": __version__,
+    }
+    _write_json(os.path.join(folder, f"summary{suffix}.json"), summary)
+    return summary

@@ -1,0 +1,70 @@
+import json
+import os
+
+import numpy as np
+import pytest
+
+from cliport.cli import demos as demos_cli
+from cliport.data.episode_io import EpisodeFileError, load_episode
+from cliport.data.generate import DemoConfig, existing_seeds, generate
+
+TASKS = ["place-red-in-green", "block-insertion"]
+
+
+@pytest.fixture(scope="module")
+def data_dir(tmp_path_factory):
+    root = str(tmp_path_factory.mktemp("demos"))
+    config = DemoConfig.defaults(data_dir=root, workers=2, camera_scale=0.5)
+    summaries = [generate(task, "train", 2, config, progress=False) for task in TASKS]
+    return root, summaries
+
+
+def test_two_tasks_two_workers(data_dir):
+    root, summaries = data_dir
+    for task, summary in zip(TASKS, summaries, strict=True):
+        folder = os.path.join(root, f"{task}-train")
+        seeds = existing_seeds(folder)
+        assert len(seeds) == 2 and all(s % 2 == 0 for s in seeds)
+        assert summary["saved"] == 2 and summary["mb_per_step"] < 0.1
+        with open(os.path.join(folder, "summary.json")) as f:
+            assert json.load(f)["saved"] == 2
+        ep = load_episode(os.path.join(folder, f"{seeds[0]:06d}.npz"))
+        assert ep.color.shape[1:] == (320, 160, 3) and ep.color.dtype == np.uint8
+        assert ep.height.shape[1:] == (320, 160) and ep.pose0.shape[1] == 7
+        assert ep.meta["task"] == task and ep.meta["seed"] == seeds[0] and ep.meta["total_reward"] > 0.99
+        assert len(ep.lang_goal) == len(ep)
+
+
+def test_resume_regenerates_only_the_missing_episode(data_dir):
+    root, _ = data_dir
+    folder = os.path.join(root, "place-red-in-green-train")
+    seeds = existing_seeds(folder)
+    keep = os.path.join(folder, f"{seeds[0]:06d}.npz")
+    before = os.path.getmtime(keep)
+    os.remove(os.path.join(folder, f"{seeds[1]:06d}.npz"))
+    with open(os.path.join(folder, "x.npz.tmp-123"), "w") as f:
+        f.write("half-written")
+    summary = generate(
+        "place-red-in-green", "train", 2, DemoConfig.defaults(data_dir=root, camera_scale=0.5), progress=False
+    )
+    assert summary["saved"] == 1 and summary["skipped_existing"] == 1
+    assert existing_seeds(folder) == seeds
+    assert os.path.getmtime(keep) == before
+    assert not [f for f in os.listdir(folder) if ".tmp-" in f]
+
+
+def test_truncated_file_is_reported_by_name(data_dir, tmp_path):
+    root, _ = data_dir
+    folder = os.path.join(root, "block-insertion-train")
+    src = os.path.join(folder, f"{existing_seeds(folder)[0]:06d}.npz")
+    bad = tmp_path / "000000.npz"
+    bad.write_bytes(open(src, "rb").read()[:5000])
+    with pytest.raises(EpisodeFileError, match=str(bad)):
+        load_episode(str(bad))
+
+
+def test_cli_reports_bad_input(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        demos_cli.run_cli(lambda: demos_cli.main(["--task", "no-such-task", "--n", "1"]), (KeyError,))
+    assert exit_info.value.code == 2
+    assert "unknown task 'no-such-task'" in capsys.readouterr().err
