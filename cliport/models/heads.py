@@ -1,0 +1,94 @@
+"""Pick ("attention") and place ("transport") heads wrapped around any net of the streams module.
+
+Rotation convention (place): bin k stands for the relative world yaw theta_k = k * 2*pi / n_rotations,
+counter-clockwise about +z. Image rows run along +y and columns along +x, so a pixel offset (du, dv) is
+the world vector (dx, dy) = (dv, du). The query for bin k is the neighbourhood of the pick pixel as it
+looks after rotating it by theta_k in world yaw: crop_k(o) = image(pick + R(-theta_k) o), with R acting
+on (x, y) = (column, row) offsets. It therefore matches the place neighbourhood of an object that is
+placed theta_k (counter-clockwise) relative to how it was picked, and decoding bin k gives that yaw.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from cliport.models.correlation import fft_cross_correlation
+
+
+class PickHead(nn.Module):
+    """Pads the input to a square, runs a 1-channel net and crops back: logits over all pick pixels."""
+
+    def __init__(self, net: nn.Module) -> None:
+        super().__init__()
+        self.net = net
+
+    def forward(self, x: torch.Tensor, sentence: torch.Tensor | None = None) -> torch.Tensor:
+        """Raw (B, 6, H, W), sentence (B, 1024) or None -> logits (B, H, W)."""
+        h, w = x.shape[-2:]
+        side = max(h, w)
+        top, left = (side - h) // 2, (side - w) // 2
+        padded = F.pad(x, (left, side - w - left, top, side - h - top))
+        logits = self.net(padded, sentence)
+        return logits[:, 0, top : top + h, left : left + w]
+
+
+def rotated_crop_grid(
+    pick_pix: torch.Tensor, n_rotations: int, crop_size: int, padded_hw: tuple[int, int], pad: int
+) -> torch.Tensor:
+    """Sampling grid of the rotated query crops for ``grid_sample(..., align_corners=True)``.
+
+    pick_pix (B, 2) as (u, v) in the unpadded image -> grid (B, n_rotations * crop, crop, 2), in which
+    rows r * crop .. (r + 1) * crop - 1 hold the crop of rotation bin r (see the module docstring).
+    """
+    device = pick_pix.device
+    half = crop_size // 2
+    offsets = torch.arange(crop_size, device=device, dtype=torch.float32) - half
+    du, dv = torch.meshgrid(offsets, offsets, indexing="ij")  # (crop, crop)
+    theta = torch.arange(n_rotations, device=device, dtype=torch.float32) * (2 * math.pi / n_rotations)
+    cos, sin = torch.cos(theta)[:, None, None], torch.sin(theta)[:, None, None]
+    # R(-theta) applied to the (x, y) = (dv, du) offset.
+    sample_v = cos * dv + sin * du
+    sample_u = -sin * dv + cos * du
+    centre = pick_pix.float() + pad
+    u = centre[:, 0, None, None, None] + sample_u[None]
+    v = centre[:, 1, None, None, None] + sample_v[None]
+    hp, wp = padded_hw
+    grid = torch.stack([2 * v / (wp - 1) - 1, 2 * u / (hp - 1) - 1], dim=-1)  # (B, R, crop, crop, 2)
+    return grid.reshape(pick_pix.shape[0], n_rotations * crop_size, crop_size, 2)
+
+
+class PlaceHead(nn.Module):
+    """Transporter place head: rotated query crops around the pick pixel correlated with a key map."""
+
+    def __init__(self, key_net: nn.Module, query_net: nn.Module, crop_size: int, n_rotations: int) -> None:
+        super().__init__()
+        if crop_size % 2:
+            raise ValueError("crop_size must be even")
+        self.key_net = key_net
+        self.query_net = query_net
+        self.crop_size = crop_size
+        self.n_rotations = n_rotations
+
+    def query_crops(self, padded: torch.Tensor, pick_pix: torch.Tensor) -> torch.Tensor:
+        """Padded raw (B, C, H + crop, W + crop), pick (B, 2) -> crops (B * R, C, crop, crop), bin-major
+        within each sample."""
+        b, c = padded.shape[:2]
+        grid = rotated_crop_grid(pick_pix, self.n_rotations, self.crop_size, padded.shape[-2:], self.crop_size // 2)
+        crops = F.grid_sample(padded, grid.to(padded.dtype), mode="bilinear", align_corners=True)
+        crops = crops.reshape(b, c, self.n_rotations, self.crop_size, self.crop_size)
+        return crops.transpose(1, 2).reshape(b * self.n_rotations, c, self.crop_size, self.crop_size)
+
+    def forward(self, x: torch.Tensor, pick_pix: torch.Tensor, sentence: torch.Tensor | None = None) -> torch.Tensor:
+        """Raw (B, 6, H, W), pick (B, 2) int (u, v), sentence (B, 1024) or None -> logits (B, R, H, W)."""
+        b, _, h, w = x.shape
+        pad = self.crop_size // 2
+        padded = F.pad(x, (pad, pad, pad, pad))
+        key = self.key_net(padded, sentence)
+        query_sentence = None if sentence is None else sentence.repeat_interleave(self.n_rotations, dim=0)
+        query = self.query_net(self.query_crops(padded, pick_pix), query_sentence)
+        kernels = query.reshape(b, self.n_rotations, *query.shape[1:])
+        return fft_cross_correlation(key, kernels)[..., :h, :w]

@@ -1,0 +1,211 @@
+import math
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from cliport.agents import PickPlaceAgent, load_agent, make_agent, make_config
+from cliport.agents.config import TransporterOnlyConfig, TwoStreamConfig
+
+H, W = 64, 32
+TINY = {"width": 0.125, "crop_size": 32, "n_rotations": 8}
+TINY_TWO_STREAM = {**TINY, "clip_weights": "random"}
+RED_BLOCK, GREEN_BOWL, BLUE_BLOCK, YELLOW_BOWL = (11, 7), (45, 23), (33, 23), (55, 7)
+
+
+def _scene() -> dict[str, np.ndarray]:
+    color = np.zeros((H, W, 3), np.uint8)
+    height = np.zeros((H, W), np.float32)
+    for (u, v), rgb, z in [
+        (RED_BLOCK, (255, 87, 89), 0.02),
+        (GREEN_BOWL, (89, 169, 79), 0.01),
+        (BLUE_BLOCK, (78, 121, 167), 0.02),
+        (YELLOW_BOWL, (237, 201, 72), 0.01),
+    ]:
+        color[u - 3 : u + 3, v - 3 : v + 3] = rgb
+        height[u - 3 : u + 3, v - 3 : v + 3] = z
+    return {"color": color, "height": height}
+
+
+def _batch(targets: list[tuple[tuple[int, int], tuple[int, int], int, str]]) -> dict[str, object]:
+    obs = _scene()
+    b = len(targets)
+    return {
+        "color": torch.from_numpy(obs["color"])[None].repeat(b, 1, 1, 1),
+        "height": torch.from_numpy(obs["height"])[None].repeat(b, 1, 1),
+        "pick_pix": torch.tensor([t[0] for t in targets]),
+        "place_pix": torch.tensor([t[1] for t in targets]),
+        "place_rot": torch.tensor([t[2] for t in targets]),
+        "lang": [t[3] for t in targets],
+    }
+
+
+def _hits(agent: PickPlaceAgent, target: tuple[tuple[int, int], tuple[int, int], int, str]) -> bool:
+    out = agent.act(_scene(), target[3])
+    n_rot = agent.config.n_rotations
+    return (
+        out["pick_pix"] == target[0]
+        and out["place_pix"] == target[1]
+        and round(out["place_rot"] / (2 * math.pi / n_rot)) % n_rot == target[2]
+    )
+
+
+def _fit(agent: PickPlaceAgent, targets: list, max_steps: int, check_every: int) -> int | None:
+    """Train on one batch holding `targets`; the step count at which every target is hit, or None."""
+    batch = _batch(targets)
+    optimizer = agent.make_optimizer()
+    for step in range(1, max_steps + 1):
+        agent.train_step(batch, optimizer)
+        if step % check_every == 0 and all(_hits(agent, t) for t in targets):
+            return step
+    return None
+
+
+@pytest.fixture(scope="module")
+def two_stream() -> PickPlaceAgent:
+    torch.manual_seed(0)
+    return make_agent("two_stream", TINY_TWO_STREAM)
+
+
+def test_registry_and_default_configs() -> None:
+    ts = make_config("two_stream")
+    assert isinstance(ts, TwoStreamConfig)
+    assert (ts.n_rotations, ts.crop_size, ts.lr, ts.width, ts.clip_weights) == (36, 64, 1e-4, 1.0, "openai")
+    to = make_config("transporter_only")
+    assert type(to) is TransporterOnlyConfig and (to.n_rotations, to.crop_size) == (36, 64)
+    with pytest.raises(KeyError):
+        make_agent("nope")
+    with pytest.raises(ValueError):
+        make_config("transporter_only", {"n_rotation": 3})
+
+
+@pytest.mark.parametrize("batch_size", [1, 3])
+def test_transporter_loss_any_batch_size(batch_size: int) -> None:
+    agent = make_agent("transporter_only", TINY)
+    target = (RED_BLOCK, GREEN_BOWL, 2, "")
+    loss, info = agent.compute_loss(_batch([target] * batch_size))
+    assert loss.shape == () and math.isfinite(loss.item())
+    assert set(info) == {"loss", "pick_loss", "place_loss"}
+    # Untrained, both terms are close to the uniform cross-entropy.
+    assert abs(info["pick_loss"] - math.log(H * W)) < 1.0
+    assert abs(info["place_loss"] - math.log(8 * H * W)) < 1.0
+
+
+def test_act_outputs(two_stream: PickPlaceAgent) -> None:
+    out = two_stream.act(_scene(), "put the red block in the green bowl")
+    for key in ("pick_heatmap", "place_heatmap"):
+        assert out[key].shape == (H, W) and out[key].dtype == np.float32
+    assert abs(out["pick_heatmap"].sum() - 1.0) < 1e-4
+    assert out["place_heatmap"].max() <= 1.0
+    (x, y, z), quat = out["pose0"]
+    assert len(quat) == 4 and 0.25 <= x <= 0.75 and -0.5 <= y <= 0.5
+    with pytest.raises(ValueError):
+        two_stream.act(_scene(), None)
+
+
+def test_transporter_fits_pick_and_place() -> None:
+    torch.manual_seed(0)
+    agent = make_agent("transporter_only", {**TINY, "lr": 1e-3})
+    assert _fit(agent, [(RED_BLOCK, GREEN_BOWL, 3, "")], max_steps=120, check_every=10) is not None
+
+
+def test_two_stream_frozen_clip_is_unchanged_by_training(two_stream: PickPlaceAgent) -> None:
+    clip = two_stream.clip
+    assert clip is not None
+    before = {k: v.clone() for k, v in clip.state_dict().items()}
+    batch = _batch([(RED_BLOCK, GREEN_BOWL, 3, "put the red block in the green bowl")])
+    optimizer = two_stream.make_optimizer()
+    assert not any(p.requires_grad for p in clip.parameters())
+    assert all(p.requires_grad for p in two_stream.trainable_parameters())
+    losses = [two_stream.train_step(batch, optimizer)["loss"] for _ in range(4)]
+    assert losses[-1] < losses[0]
+    assert not clip.training and not any(m.training for m in clip.modules())
+    after = clip.state_dict()
+    assert all(torch.equal(before[k], after[k]) for k in before)  # weights and BN running stats
+    # One CLIP instance is shared by the pick, key and query nets.
+    assert two_stream.pick.net.clip is clip
+    assert two_stream.place.key_net.clip is clip and two_stream.place.query_net.clip is clip
+
+
+def _assert_same_act(a: PickPlaceAgent, b: PickPlaceAgent, instruction: str | None) -> None:
+    out_a, out_b = a.act(_scene(), instruction), b.act(_scene(), instruction)
+    for key in out_a:
+        if isinstance(out_a[key], np.ndarray):
+            np.testing.assert_array_equal(out_a[key], out_b[key])
+        else:
+            assert out_a[key] == out_b[key], key
+
+
+@pytest.mark.parametrize("name", ["transporter_only", "two_stream"])
+def test_checkpoint_round_trip(name: str, tmp_path: Path) -> None:
+    torch.manual_seed(1)
+    cfg = TINY_TWO_STREAM if name == "two_stream" else TINY
+    agent = make_agent(name, cfg)
+    agent.train_step(
+        _batch([(RED_BLOCK, GREEN_BOWL, 3, "put the red block in the green bowl")]), agent.make_optimizer()
+    )
+    path = tmp_path / "ckpt" / "agent.pt"
+    agent.save_checkpoint(path)
+    assert [p.name for p in path.parent.iterdir()] == ["agent.pt"]  # no temp file left behind
+    payload = torch.load(path, weights_only=True)
+    assert payload["agent"] == name
+    assert payload["config"] == agent.config.to_dict()
+    assert payload["clip_weights"] == ("random" if name == "two_stream" else None)
+    assert not any("clip" in k for k in payload["state_dict"])
+    n_saved = sum(v.numel() for v in payload["state_dict"].values())
+    assert n_saved == sum(p.numel() for p in agent.trainable_parameters())
+    torch.manual_seed(2)
+    loaded = load_agent(path)
+    assert type(loaded) is type(agent)
+    _assert_same_act(agent, loaded, "put the red block in the green bowl")
+
+
+@pytest.mark.slow
+def test_checkpoint_loads_in_a_fresh_process(tmp_path: Path) -> None:
+    torch.manual_seed(3)
+    agent = make_agent("two_stream", TINY_TWO_STREAM)
+    path = tmp_path / "agent.pt"
+    agent.save_checkpoint(path)
+    expected = agent.act(_scene(), "pack the box")["place_heatmap"]
+    np.save(tmp_path / "obs_color.npy", _scene()["color"])
+    np.save(tmp_path / "obs_height.npy", _scene()["height"])
+    script = (
+        "import numpy as np, sys\n"
+        "from cliport.agents import load_agent\n"
+        "d = sys.argv[1]\n"
+        "obs = {'color': np.load(d + '/obs_color.npy'), 'height': np.load(d + '/obs_height.npy')}\n"
+        "np.save(d + '/got.npy', load_agent(d + '/agent.pt').act(obs, 'pack the box')['place_heatmap'])\n"
+    )
+    subprocess.run([sys.executable, "-c", script, str(tmp_path)], check=True, timeout=300)
+    np.testing.assert_array_equal(np.load(tmp_path / "got.npy"), expected)
+
+
+@pytest.mark.slow
+def test_two_stream_learns_two_instructions_on_one_image() -> None:
+    torch.manual_seed(0)
+    agent = make_agent("two_stream", {**TINY_TWO_STREAM, "lr": 5e-4})
+    targets = [
+        (RED_BLOCK, GREEN_BOWL, 3, "put the red block in the green bowl"),
+        (BLUE_BLOCK, YELLOW_BOWL, 6, "put the blue block in the yellow bowl"),
+    ]
+    assert _fit(agent, targets, max_steps=300, check_every=10) is not None
+
+
+@pytest.mark.parametrize("name", ["transporter_only", "two_stream"])
+def test_real_size_forward(name: str) -> None:
+    cfg = {"clip_weights": "random"} if name == "two_stream" else {}
+    agent = make_agent(name, cfg)
+    rng = np.random.default_rng(0)
+    obs = {
+        "color": rng.integers(0, 255, (320, 160, 3), dtype=np.uint8),
+        "height": rng.uniform(0, 0.05, (320, 160)).astype(np.float32),
+    }
+    start = time.monotonic()
+    out = agent.act(obs, "put the red block in the green bowl")
+    assert out["pick_heatmap"].shape == (320, 160) and out["place_heatmap"].shape == (320, 160)
+    assert 0 <= out["place_rot"] < 2 * math.pi
+    assert time.monotonic() - start < 60

@@ -1,0 +1,87 @@
+import time
+from pathlib import Path
+
+import pytest
+import torch
+from safetensors.torch import save_file
+
+from cliport.models import clip_backbone
+from cliport.models.clip_backbone import CLIPWeightsUnavailable, FrozenCLIP, build_clip_model, load_clip
+
+
+@pytest.fixture(scope="module")
+def clip() -> FrozenCLIP:
+    return load_clip("random")
+
+
+def _perturbed_state(clip: FrozenCLIP) -> dict[str, torch.Tensor]:
+    # Differ from the seeded "random" init so that a silent fallback to it would be caught.
+    gen = torch.Generator().manual_seed(123)
+    return {
+        k: (v + torch.randn(v.shape, generator=gen).to(v.dtype) if v.is_floating_point() else v).contiguous()
+        for k, v in clip.model.state_dict().items()
+    }
+
+
+@pytest.mark.parametrize("suffix", [".pt", ".safetensors"])
+def test_state_dict_file_round_trip(clip: FrozenCLIP, tmp_path: Path, suffix: str) -> None:
+    state = _perturbed_state(clip)
+    path = tmp_path / f"rn50{suffix}"
+    if suffix == ".pt":
+        torch.save(state, path)
+    else:
+        save_file(state, str(path))
+    loaded = load_clip(str(path))
+    assert loaded.source == str(path)
+    got = loaded.model.state_dict()
+    assert got.keys() == state.keys()
+    for k, v in state.items():
+        assert torch.equal(got[k], v), k
+
+
+def test_openai_fails_fast_and_clearly_offline(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(clip_backbone, "_cached_openai_file", lambda: None)
+    monkeypatch.setattr(clip_backbone, "_hub_reachable", lambda timeout_s=3.0: False)
+    start = time.monotonic()
+    with pytest.raises(CLIPWeightsUnavailable) as err:
+        build_clip_model("openai")
+    assert time.monotonic() - start < 10
+    message = str(err.value)
+    assert "clip_weights" in message and "random" in message and "RN50.pt" in message
+
+
+def test_hub_is_unreachable_when_hf_offline_is_set(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("HF_HUB_OFFLINE", "1")
+    assert not clip_backbone._hub_reachable()
+
+
+def test_missing_file_is_an_error_not_a_fallback(tmp_path: Path) -> None:
+    with pytest.raises(CLIPWeightsUnavailable):
+        build_clip_model(str(tmp_path / "nope.pt"))
+
+
+def test_random_init_is_reproducible(clip: FrozenCLIP) -> None:
+    again = build_clip_model("random")
+    for (k, v), w in zip(clip.model.state_dict().items(), again.state_dict().values(), strict=True):
+        assert torch.equal(v, w), k
+
+
+def test_frozen_stays_in_eval_mode_without_grads(clip: FrozenCLIP) -> None:
+    clip.train()
+    assert not clip.training and not any(m.training for m in clip.modules())
+    assert not any(p.requires_grad for p in clip.parameters())
+
+
+def test_image_features_shapes(clip: FrozenCLIP) -> None:
+    feats = clip.image_features(torch.rand(2, 3, 64, 96))
+    shapes = [tuple(f.shape) for f in feats]
+    assert shapes == [(2, 64, 16, 24), (2, 256, 16, 24), (2, 512, 8, 12), (2, 1024, 4, 6), (2, 2048, 2, 3)]
+    assert not any(f.requires_grad for f in feats)
+
+
+def test_sentence_features_are_cached_per_string(clip: FrozenCLIP) -> None:
+    feats = clip.sentence_features(["pack the box", "push the pile", "pack the box"])
+    assert feats.shape == (3, 1024)
+    assert torch.equal(feats[0], feats[2])
+    assert not torch.allclose(feats[0], feats[1])
+    assert "pack the box" in clip._sentence_cache

@@ -1,0 +1,92 @@
+import pytest
+import torch
+
+from cliport.models.clip_backbone import FrozenCLIP, load_clip
+from cliport.models.heads import PickHead, PlaceHead
+from cliport.models.resnet import ResNet43_8s, ResNet45_10s
+from cliport.models.streams import TransporterNet, TwoStreamNet
+
+
+def _count(module: torch.nn.Module) -> int:
+    return sum(p.numel() for p in module.parameters() if p.requires_grad)
+
+
+@pytest.fixture(scope="module")
+def clip() -> FrozenCLIP:
+    return load_clip("random")
+
+
+def test_resnet43_real_size_shape_and_params() -> None:
+    net = ResNet43_8s(6, 1)
+    assert 9.7e6 < _count(net) < 9.9e6
+    with torch.no_grad():
+        assert net(torch.randn(1, 6, 320, 320)).shape == (1, 1, 320, 320)
+
+
+def test_resnet45_laterals() -> None:
+    net = ResNet45_10s(6, 3, width=0.125)
+    out, laterals = net(torch.randn(2, 6, 64, 32))
+    assert out.shape == (2, 3, 64, 32)
+    assert [tuple(t.shape[1:]) for t in laterals] == [(64, 4, 2), (32, 8, 4), (16, 16, 8), (8, 32, 16), (4, 64, 32)]
+
+
+def test_two_stream_real_size_params(clip: FrozenCLIP) -> None:
+    pick = TwoStreamNet(clip, 1, "add")
+    key = TwoStreamNet(clip, 3, "conv")
+    assert 88e6 < _count(pick) < 96e6
+    assert 88e6 < _count(key) < 96e6
+    assert all(not p.requires_grad for p in clip.parameters())
+
+
+@pytest.mark.parametrize("fusion,out_ch", [("add", 1), ("conv", 3)])
+def test_two_stream_shapes_and_language_dependence(clip: FrozenCLIP, fusion: str, out_ch: int) -> None:
+    torch.manual_seed(0)
+    net = TwoStreamNet(clip, out_ch, fusion, width=0.25)
+    x = torch.rand(2, 6, 64, 96)
+    sentences = clip.sentence_features(["pick the red block", "pick the blue block"])
+    out = net(x, sentences)
+    assert out.shape == (2, out_ch, 64, 96)
+    # Random CLIP features are tiny, so the language effect is small at init, but it must be there
+    # (checked before the stream fusion, whose ReLU may zero a random-init semantic output).
+    _, laterals = net.spatial(x)
+    trunk = clip.image_features(x[:, :3])
+    semantic = net.semantic(trunk, sentences, laterals)
+    assert not torch.equal(semantic, net.semantic(trunk, sentences.flip(0), laterals))
+    with pytest.raises(ValueError):
+        net(x, None)
+
+
+def test_two_stream_gradients_reach_every_trainable_parameter(clip: FrozenCLIP) -> None:
+    net = TwoStreamNet(clip, 3, "conv", width=0.125)
+    out = net(torch.rand(1, 6, 64, 64), clip.sentence_features(["a"]))
+    out.square().mean().backward()
+    missing = [n for n, p in net.named_parameters() if p.requires_grad and p.grad is None]
+    assert missing == []
+    assert all(p.grad is None for p in clip.parameters())
+
+
+def test_pick_head_pads_to_square_and_crops_back() -> None:
+    seen: list[tuple[int, ...]] = []
+
+    class Recorder(torch.nn.Module):
+        def forward(self, x: torch.Tensor, sentence: torch.Tensor | None = None) -> torch.Tensor:
+            seen.append(tuple(x.shape))
+            return x[:, 3:4]
+
+    head = PickHead(Recorder())
+    x = torch.rand(2, 6, 64, 32)
+    logits = head(x)
+    assert seen == [(2, 6, 64, 64)]
+    assert torch.equal(logits, x[:, 3])
+
+
+def test_place_head_shapes_and_unrotated_crop() -> None:
+    head = PlaceHead(TransporterNet(3, 0.125), TransporterNet(3, 0.125), crop_size=16, n_rotations=6)
+    x = torch.rand(2, 6, 64, 32)
+    pick = torch.tensor([[10, 5], [40, 30]])
+    assert head(x, pick).shape == (2, 6, 64, 32)
+    padded = torch.nn.functional.pad(x, (8, 8, 8, 8))
+    crops = head.query_crops(padded, pick).reshape(2, 6, 6, 16, 16)
+    # Bin 0 is the plain crop centred on the pick pixel: padded rows u .. u + crop - 1.
+    assert torch.allclose(crops[0, 0], padded[0, :, 10:26, 5:21], atol=1e-5)
+    assert torch.allclose(crops[1, 0], padded[1, :, 40:56, 30:46], atol=1e-5)
