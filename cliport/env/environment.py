@@ -110,6 +110,10 @@ class Environment:
         self.objects: dict[str, list[int]] = {"fixed": [], "rigid": [], "deformable": []}
         self.steps = 0
         self.seed: int | None = None
+        self.frames: list[np.ndarray] | None = None  # video frames while recording
+        self._frame_every = 24
+        self._frame_camera = self.camera_configs[0]
+        self._since_frame = 0
 
     # ------------------------------------------------------------------ set-up
     def _choose_renderer(self, choice: str) -> tuple[int, str]:
@@ -152,6 +156,8 @@ class Environment:
         self._build_table()
         end_effector = self.task.end_effector if self.task is not None else "suction"
         self.robot = UR5(self.client, end_effector, self.asset_dir)
+        if self.frames is not None:
+            self.robot.on_step = self._maybe_capture
         if end_effector == "suction":
             self.ee = Suction(self.client, self.robot.body, self.robot.tip_link, set())
         else:
@@ -201,6 +207,7 @@ class Environment:
                 motion = pick_place(self.robot, self.ee, pose0, pose1, settings)
             self.robot.movej(self.robot.home, budget=2400)
         self.settle()
+        self.capture_frame()
         self.steps += 1
         reward, task_info = (0.0, {})
         done = False
@@ -227,6 +234,34 @@ class Environment:
         return False
 
     # ------------------------------------------------------------------ sensing
+    def start_recording(self, every: int = 24, scale: float = 0.5) -> None:
+        """Capture the front camera every ``every`` simulation steps of arm motion (and after each
+        action) into ``self.frames``, at ``scale`` x 640 x 480; for videos of episodes."""
+        self.frames = []
+        self._frame_every = every
+        self._frame_camera = cameras.realsense_d415()[0].scaled(scale)
+        self._since_frame = 0
+        if self.robot is not None:
+            self.robot.on_step = self._maybe_capture
+
+    def stop_recording(self) -> list[np.ndarray]:
+        frames, self.frames = self.frames or [], None
+        if self.robot is not None:
+            self.robot.on_step = None
+        return frames
+
+    def capture_frame(self) -> None:
+        if self.frames is not None:
+            with self._quiet():
+                color, _, _ = cameras.render(self._frame_camera, self.client, self.renderer)
+            self.frames.append(color)
+
+    def _maybe_capture(self) -> None:
+        self._since_frame += 1
+        if self._since_frame >= self._frame_every:
+            self._since_frame = 0
+            self.capture_frame()
+
     def render_cameras(self) -> list[dict[str, np.ndarray]]:
         """Colour (H, W, 3) uint8 and depth (H, W) float32 from each of the three cameras."""
         out = []

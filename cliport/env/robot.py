@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import pybullet as p
 
@@ -28,7 +30,8 @@ class UR5:
         self.tool_frame_link = links["tool_frame"]
         self.home = np.array(urdf.HOME_JOINTS)
         self.joint_tolerance = joint_tolerance
-        self.steps_taken = 0  # simulation steps spent moving since the last reset_counter()
+        self.steps_taken = 0  # simulation steps spent moving
+        self.on_step: Callable[[], None] | None = None  # called after every motion step (video capture)
         self.reset_joints(self.home)
 
     def reset_joints(self, q: np.ndarray) -> None:
@@ -105,6 +108,8 @@ class UR5:
             )
             p.stepSimulation(physicsClientId=self.client)
             self.steps_taken += 1
+            if self.on_step is not None:
+                self.on_step()
         return False
 
     def movep(self, pose: Pose, speed: float = 0.01, budget: int = 2400) -> bool:

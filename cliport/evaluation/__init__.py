@@ -1,0 +1,1 @@
+"""Evaluating agents in the simulator: success scores, confidence intervals, videos and heatmaps."""

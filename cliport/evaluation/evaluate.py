@@ -1,0 +1,96 @@
+"""Run an agent on a task's val/test seeds and summarise its success (mean total reward x100)."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import statistics
+from typing import Any
+
+import torch
+from tqdm import tqdm
+
+from cliport.data.rollout import run_episode
+from cliport.data.seeds import episode_seeds
+from cliport.env.environment import EnvConfig, Environment
+
+
+def resolve_device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name.startswith("cuda") and not torch.cuda.is_available():
+        raise ValueError(f"device {name!r} was asked for but CUDA is not available")
+    return torch.device(name)
+
+
+def confidence_interval(scores: list[float]) -> tuple[float, float]:
+    """95% normal-approximation interval of the mean of ``scores``."""
+    mean = statistics.mean(scores)
+    if len(scores) < 2:
+        return mean, mean
+    half = 1.96 * statistics.stdev(scores) / math.sqrt(len(scores))
+    return mean - half, mean + half
+
+
+def agent_policy(agent: Any, lang: str | None = None, on_act=None):
+    """Policy calling ``agent.act`` with the task's current instruction (or ``lang`` when given)."""
+
+    def act(obs: dict[str, Any], info: dict[str, Any]) -> dict[str, Any]:
+        instruction = lang if lang is not None else info.get("lang_goal")
+        result = agent.act(obs, instruction)
+        if on_act is not None:
+            on_act(obs, result, instruction)
+        return result
+
+    return act
+
+
+def evaluate(
+    agent: Any,
+    task_name: str,
+    mode: str,
+    n_episodes: int,
+    camera_scale: float = 1.0,
+    progress: bool = True,
+    video_dir: str | None = None,
+    video_fps: int = 20,
+) -> dict[str, Any]:
+    """Episodes on the first ``n_episodes`` seeds of ``mode``; returns per-episode and summary scores."""
+    from cliport import tasks
+    from cliport.evaluation.visualize import save_video
+
+    task = tasks.make(task_name, mode)
+    episodes = []
+    with Environment(EnvConfig.defaults(camera_scale=camera_scale), task=task) as env:
+        policy = agent_policy(agent)
+        for seed in tqdm(
+            episode_seeds(mode, n_episodes), desc=f"eval {task_name}-{mode}", disable=not progress, leave=False
+        ):
+            if video_dir is not None:
+                env.start_recording()
+            episode = run_episode(env, seed, policy)
+            row = {"seed": seed, "total_reward": round(episode.total_reward, 4), "actions": episode.n_actions}
+            if video_dir is not None:
+                row["video"] = os.path.join(video_dir, f"{task_name}-{mode}-{seed:06d}.gif")
+                save_video(row["video"], env.stop_recording(), video_fps)
+            episodes.append(row)
+    scores = [100 * e["total_reward"] for e in episodes]
+    low, high = confidence_interval(scores)
+    return {
+        "task": task_name,
+        "mode": mode,
+        "n_episodes": len(episodes),
+        "mean_score": round(statistics.mean(scores), 2),
+        "ci95": [round(low, 2), round(high, 2)],
+        "success_rate": sum(e["total_reward"] > 0.99 for e in episodes) / len(episodes),
+        "episodes": episodes,
+    }
+
+
+def write_json(path: str, data: Any) -> None:
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    tmp = f"{path}.tmp-{os.getpid()}"
+    with open(tmp, "w") as f:
+        json.dump(data, f, indent=2)
+    os.replace(tmp, path)

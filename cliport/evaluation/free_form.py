@@ -1,0 +1,52 @@
+"""One episode with a free-form instruction: a video and the pick/place heatmaps of every action."""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+from cliport.data.rollout import run_episode
+from cliport.env.environment import EnvConfig, Environment
+from cliport.evaluation.evaluate import agent_policy, write_json
+from cliport.evaluation.visualize import action_panel, save_png, save_video
+
+
+def run_instruction(
+    agent: Any, task_name: str, mode: str, seed: int, lang: str, out_dir: str, camera_scale: float = 1.0
+) -> dict[str, Any]:
+    """Reset ``task_name`` with ``seed`` and act with ``lang`` in place of the task's instructions."""
+    from cliport import tasks
+
+    notes = []
+    if agent.name == "transporter_only":
+        notes.append("transporter_only ignores language: the instruction cannot change what it does")
+        print(f"note: {notes[0]}")
+    os.makedirs(out_dir, exist_ok=True)
+    stem = f"{task_name}-seed{seed}"
+    panels: list[str] = []
+
+    def on_act(obs, result, instruction):
+        path = os.path.join(out_dir, f"{stem}-step{len(panels) + 1}-heatmaps.png")
+        save_png(path, action_panel(obs, result, instruction))
+        panels.append(path)
+
+    with Environment(EnvConfig.defaults(camera_scale=camera_scale), task=tasks.make(task_name, mode)) as env:
+        env.start_recording()
+        episode = run_episode(env, seed, agent_policy(agent, lang=lang, on_act=on_act))
+        frames = env.stop_recording()
+    video = os.path.join(out_dir, f"{stem}.gif")
+    save_video(video, frames)
+    result = {
+        "task": task_name,
+        "seed": seed,
+        "instruction": lang,
+        "agent": agent.name,
+        "clip_weights": agent.clip_source(),
+        "actions": episode.n_actions,
+        "task_reward": round(episode.total_reward, 4),
+        "video": video,
+        "heatmaps": panels,
+        "notes": notes,
+    }
+    write_json(os.path.join(out_dir, f"{stem}.json"), result)
+    return result

@@ -1,0 +1,1 @@
+"""Published results of the CLIPort and Transporter Networks papers, shipped with the package."""

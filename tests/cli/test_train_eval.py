@@ -1,0 +1,149 @@
+"""End to end on CPU: demos -> cliport-train (both agents, 10 steps) -> cliport-eval, plus bad input."""
+
+import json
+import os
+
+import pytest
+
+from cliport.cli import demos as demos_cli
+from cliport.cli import eval as eval_cli
+from cliport.cli import train as train_cli
+from cliport.cli.common import run_cli
+from cliport.data.dataset import DatasetError
+from cliport.train import trainer
+
+TASK = "block-insertion"
+TINY = ["--width", "0.125", "--agent-option", "n_rotations=4", "--agent-option", "crop_size=32"]
+
+
+def _run(main, argv, errors=(KeyError, ValueError, DatasetError, FileNotFoundError)):
+    run_cli(lambda: main(argv), errors)
+
+
+@pytest.fixture(scope="module")
+def data_dir(tmp_path_factory):
+    root = str(tmp_path_factory.mktemp("e2e"))
+    _run(demos_cli.main, ["--task", TASK, "--n", "2", "--data-dir", root, "--camera-scale", "0.5", "--no-progress"])
+    return root
+
+
+def _train_args(data_dir, run_dir, agent, steps=10, extra=()):
+    return [
+        "--agent", agent, "--task", TASK, "--n-demos", "2", "--n-steps", str(steps), "--batch-size", "2",
+        "--data-dir", data_dir, "--run-dir", run_dir, "--num-workers", "0", "--val-episodes", "1",
+        "--camera-scale", "0.5", "--checkpoint-steps", "5", "--checkpoint-every", "0", "--log-every", "5",
+        "--no-progress", "--clip-weights", "random", *TINY, *extra,
+    ]  # fmt: skip
+
+
+@pytest.mark.parametrize("agent", ["transporter_only", "two_stream"])
+def test_train_then_eval(data_dir, tmp_path, agent, capsys):
+    run_dir = str(tmp_path / agent)
+    _run(train_cli.main, _train_args(data_dir, run_dir, agent))
+    assert trainer.saved_checkpoint_steps(run_dir) == [5, 10]
+    with open(os.path.join(run_dir, "config.json")) as f:
+        assert json.load(f)["agent"] == agent
+    with open(os.path.join(run_dir, "val.json")) as f:
+        val = json.load(f)
+    assert set(val["checkpoints"]) == {"5", "10"} and val["best_step"] in (5, 10)
+    with open(os.path.join(run_dir, "metrics.csv")) as f:
+        assert [line.split(",")[0] for line in f.read().split()[1:]] == ["5", "10"]
+    capsys.readouterr()
+    _run(eval_cli.main, ["--run-dir", run_dir, "--n-episodes", "2", "--camera-scale", "0.5", "--no-progress"])
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert summary["n_episodes"] == 2 and summary["agent"] == agent and summary["mode"] == "test"
+    assert 0.0 <= summary["mean_score"] <= 100.0 and len(summary["ci95"]) == 2
+    assert summary["clip_weights"] == ("random" if agent == "two_stream" else None)
+    assert summary["checkpoint"] == val["best_step"]
+    with open(os.path.join(run_dir, "eval", f"{TASK}-test-{val['best_step']}.json")) as f:
+        assert [e["seed"] for e in json.load(f)["episodes"]] == [10001, 10003]
+
+
+def test_resume_after_interruption(data_dir, tmp_path, monkeypatch):
+    run_dir = str(tmp_path / "resume")
+    real = trainer._batches
+
+    def interrupted(loader):
+        for i, batch in enumerate(real(loader)):
+            if i == 7:
+                raise KeyboardInterrupt
+            yield batch
+
+    monkeypatch.setattr(trainer, "_batches", interrupted)
+    with pytest.raises(SystemExit) as stop:
+        _run(train_cli.main, _train_args(data_dir, run_dir, "transporter_only", extra=["--val-episodes", "0"]))
+    assert stop.value.code == 130
+    monkeypatch.setattr(trainer, "_batches", real)
+    import torch
+
+    assert torch.load(trainer.checkpoint_file(run_dir, "last"), weights_only=False)["trainer"]["step"] == 7
+    _run(train_cli.main, ["--run-dir", run_dir, "--resume", "--no-progress"])
+    assert torch.load(trainer.checkpoint_file(run_dir, "last"), weights_only=False)["trainer"]["step"] == 10
+    assert trainer.saved_checkpoint_steps(run_dir) == [5, 10]
+
+
+@pytest.mark.parametrize(
+    "main, args, message",
+    [
+        (train_cli.main, ["--agent", "cliport9", "--task", TASK], "unknown agent 'cliport9'"),
+        (
+            train_cli.main,
+            ["--agent", "transporter_only", "--task", "block-insertoin"],
+            "unknown task 'block-insertoin'",
+        ),
+        (
+            train_cli.main,
+            ["--agent", "transporter_only", "--task", TASK, "--data-dir", "/nonexistent"],
+            "no demonstrations",
+        ),
+        (
+            train_cli.main,
+            ["--agent", "transporter_only", "--task", TASK, "--n-demos", "50"],
+            "has 2 episodes but n_demos=50",
+        ),
+        (eval_cli.main, ["--run-dir", "/nonexistent"], "run folder not found"),
+    ],
+)
+def test_bad_input_is_one_clear_line(data_dir, tmp_path, capsys, main, args, message):
+    if main is train_cli.main and "--data-dir" not in args:
+        args += ["--data-dir", data_dir]
+    args += ["--run-dir", str(tmp_path / "bad")] if main is train_cli.main else []
+    with pytest.raises(SystemExit) as stop:
+        _run(main, args)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert stop.value.code == 2 and len(err) == 1 and message in err[0], err
+
+
+def test_eval_rejects_other_agent_and_empty_lang(data_dir, tmp_path, capsys):
+    run_dir = str(tmp_path / "t")
+    _run(train_cli.main, _train_args(data_dir, run_dir, "transporter_only", steps=5, extra=["--val-episodes", "0"]))
+    for args, message in [
+        (
+            ["--agent", "two_stream", "--checkpoint", "last"],
+            "is a checkpoint of agent 'transporter_only', not 'two_stream'",
+        ),
+        (["--lang", "  "], "--lang must be a non-empty instruction"),
+        (["--checkpoint", "best"], "no validation results"),
+    ]:
+        capsys.readouterr()
+        with pytest.raises(SystemExit) as stop:
+            _run(eval_cli.main, ["--run-dir", run_dir, *args])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert stop.value.code == 2 and len(err) == 1 and message in err[0], err
+    with pytest.raises(SystemExit):
+        _run(train_cli.main, ["--run-dir", run_dir, "--resume", "--agent", "two_stream"])
+    assert "is a run of agent 'transporter_only'" in capsys.readouterr().err
+
+
+def test_free_form_instruction_writes_video_and_heatmaps(data_dir, tmp_path, capsys):
+    run_dir = str(tmp_path / "lang")
+    _run(train_cli.main, _train_args(data_dir, run_dir, "two_stream", steps=5, extra=["--val-episodes", "0"]))
+    capsys.readouterr()
+    out = str(tmp_path / "out")
+    _run(eval_cli.main, ["--run-dir", run_dir, "--checkpoint", "last", "--lang", "put the block in the fixture",
+                         "--seed", "3", "--out", out, "--camera-scale", "0.5"])  # fmt: skip
+    result = json.loads(capsys.readouterr().out)
+    assert result["instruction"] == "put the block in the fixture" and result["seed"] == 3
+    assert os.path.getsize(result["video"]) > 1000 and result["video"].endswith(".gif")
+    assert len(result["heatmaps"]) == result["actions"] >= 1
+    assert all(os.path.getsize(p) > 1000 for p in result["heatmaps"])

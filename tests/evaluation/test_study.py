@@ -1,0 +1,25 @@
+import os
+
+from cliport.evaluation.published import published_scores
+from cliport.evaluation.study import markdown_table, plot_study, summarise_run
+
+
+def test_published_lookup_maps_task_names():
+    scores = published_scores("packing-boxes-pairs-seen-colors", "transporter_only", 10)
+    assert [s["score"] for s in scores] == [55.2]
+    ravens = published_scores("assembling-kits", "transporter_only", 100)
+    assert {s["source"].split(",")[0] for s in ravens} == {"Transporter Networks paper", "CLIPort Table 6"}
+    assert published_scores("put-block-in-bowl-unseen-colors", "two_stream", 1)[0]["training_steps"] == 200000
+    assert published_scores("no-such-task", "two_stream", 1) == []
+
+
+def test_summary_table_and_plot(tmp_path):
+    val = {"checkpoints": {"1000": {"mean_score": 40.0}, "2000": {"mean_score": 70.0}}, "best_step": 2000}
+    run = summarise_run("block-insertion", "transporter_only", 10, {"1000": 35.0, "2000": 60.0, "5000": 80.0}, val)
+    assert run["test_at_val_selected"] == 60.0 and run["test_at_last"] == 80.0 and run["best_test"] == 80.0
+    results = {"task": "block-insertion", "n_steps": 5000, "runs": [run]}
+    table = markdown_table(results)
+    assert "| transporter_only | 10 | 60.0 (step 2000) | 80.0 | 80.0 | 100.0 (Transporter Networks paper" in table
+    path = str(tmp_path / "plot.png")
+    plot_study(results, path)
+    assert os.path.getsize(path) > 10000
