@@ -113,3 +113,13 @@ def test_registry_errors():
         tasks.make("place-red-in-gren")
     with pytest.raises(ValueError, match="mode"):
         tasks.make("place-red-in-green", mode="training")
+
+
+def test_groups_name_registered_tasks():
+    groups = tasks.groups()
+    assert len(groups["multi-ravens"]) == 10 and len(groups["multi-language-conditioned"]) == 18
+    for members in groups.values():
+        assert set(members) <= set(tasks.names())
+    assert tasks.resolve("multi-language-conditioned-seen")[0] == "align-rope"
+    with pytest.raises(KeyError, match="multi-task group"):
+        tasks.make("multi-ravens")
