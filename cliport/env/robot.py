@@ -41,6 +41,11 @@ class UR5:
             self.body, self.joints, p.POSITION_CONTROL, targetPositions=list(q), physicsClientId=self.client
         )
 
+    def _set_joints(self, q: np.ndarray) -> None:
+        """Set joint angles without touching the motors (for virtual poses inside IK)."""
+        for j, qi in zip(self.joints, q, strict=True):
+            p.resetJointState(self.body, j, float(qi), physicsClientId=self.client)
+
     def joint_positions(self) -> np.ndarray:
         states = p.getJointStates(self.body, self.joints, physicsClientId=self.client)
         return np.array([s[0] for s in states])
@@ -58,15 +63,20 @@ class UR5:
     def solve_ik(self, pose: Pose, refinements: int = 5, tolerance: float = 2e-4) -> np.ndarray:
         """Joint angles that put the tool tip at ``pose`` (solved once per move).
 
-        PyBullet's damped-least-squares IK starts from the current joint state, so solutions stay in
-        the arm's current (elbow-up) family; its null-space variant with joint limits was measured
-        to stop 1-16 mm short, so the plain solver is used. Near the edge of reach it can still
-        stop short, so the solve is repeated from its own answer (joints set only virtually, then
-        restored with their velocities) until the tip is within ``tolerance``.
+        PyBullet's damped-least-squares IK starts from the joint state it finds, so the solve starts
+        from the home joints (set only virtually, then restored with their velocities) and stays in
+        the home (elbow-up, facing the workspace) family whatever pose the arm is in; the solver's
+        null-space variant with joint limits was measured to stop 1-16 mm short, so the plain one
+        is used. Near the edge of reach it can stop short, so the solve is repeated from its own
+        answer until the tip is within ``tolerance``.
         """
         saved = p.getJointStates(self.body, self.joints, physicsClientId=self.client)
-        q = self.joint_positions()
+        q = self.home.copy()
         try:
+            # Start from the home joints, not the current ones: from some poses the solver otherwise
+            # lands in a flipped configuration (base turned a full circle, shoulder over the top) and
+            # sweeps the workspace on its way there.
+            self._set_joints(self.home)
             for _ in range(refinements):
                 q = np.array(
                     p.calculateInverseKinematics(
@@ -79,8 +89,7 @@ class UR5:
                         physicsClientId=self.client,
                     )[: len(self.joints)]
                 )
-                for j, qi in zip(self.joints, q, strict=True):
-                    p.resetJointState(self.body, j, float(qi), physicsClientId=self.client)
+                self._set_joints(q)
                 if np.linalg.norm(np.subtract(self.tip_pose()[0], pose[0])) < tolerance:
                     break
         finally:
