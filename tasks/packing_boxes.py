@@ -1,0 +1,128 @@
+"""packing-boxes: fill a brown container with boxes made by a random k-d split of its interior.
+
+packing-boxes-pairs-{seen,unseen}-colors: the same container, boxes of two named colours fill it, and
+four distractor boxes of other colours stay out ("pack all the {c1} and {c2} blocks into the brown box").
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from cliport.env import shapes
+from cliport.env.transforms import multiply
+from cliport.tasks import register
+from cliport.tasks.base import GoalStep
+from cliport.tasks.colors import COLORS, split_colors
+from cliport.tasks.packing_assets import FLOOR_THICKNESS, ZoneOracleMixin, container, kd_split
+
+MIN_SIDE = 0.05  # smallest box side before the clearance
+CLEARANCE = 0.006  # each box is this much smaller than its cell along x and y
+BOX_HEIGHT = 0.05
+WALL_HEIGHT = 0.03
+
+
+class PackingBoxesBase(ZoneOracleMixin):
+    """Shared scene: a container of random interior size split into cells; one box per cell."""
+
+    max_steps = 20
+    interior_range = (0.1, 0.3)
+    max_boxes = 12
+
+    def build_container(self, env, min_cells: int = 1):
+        """Place the container; returns (container pose, interior size, cells as (target pose, box size))."""
+        rng = self.rng
+        while True:
+            interior = (float(rng.uniform(*self.interior_range)), float(rng.uniform(*self.interior_range)))
+            cells = kd_split(rng, interior, MIN_SIDE, self.max_boxes)
+            if len(cells) >= min_cells:
+                break
+        pose = self.random_pose((interior[0] + 0.01, interior[1] + 0.01, 0.0), margin=0.01)
+        if pose is None:
+            raise RuntimeError("no room on the table for the container")
+        pose = ((pose[0][0], pose[0][1], 0.0), pose[1])
+        container(env, pose, interior, WALL_HEIGHT)
+        targets = []
+        for centre, size in cells:
+            local = ((float(centre[0]), float(centre[1]), FLOOR_THICKNESS + BOX_HEIGHT / 2), (0.0, 0.0, 0.0, 1.0))
+            box_size = (float(size[0]) - CLEARANCE, float(size[1]) - CLEARANCE, BOX_HEIGHT)
+            targets.append((multiply(pose, local), box_size))
+        return pose, interior, targets
+
+    def scatter_box(self, env, size: tuple[float, float, float], color) -> int | None:
+        pose = self.random_pose(size, margin=0.005)
+        if pose is None:
+            return None
+        return env.add_object(shapes.box(env.client, size, pose, color))
+
+    def add_packing_goal(self, boxes, targets, zone_pose, interior, lang_goal: str | None = None) -> None:
+        self.add_goal(
+            GoalStep(
+                objects=boxes,
+                matches=np.eye(len(boxes)),
+                targets=targets,
+                share=1.0,
+                symmetries=[math.pi] * len(boxes),
+                rotations=True,
+                metric="zone",
+                zones=[(zone_pose, (interior[0], interior[1], WALL_HEIGHT))],
+                lang_goal=lang_goal,
+            )
+        )
+
+
+@register("packing-boxes")
+class PackingBoxes(PackingBoxesBase):
+    lang_template = "pack all the boxes inside the brown box"
+
+    def reset(self, env, rng: np.random.Generator) -> None:
+        super().reset(env, rng)
+        zone_pose, interior, cells = self.build_container(env)
+        colors = [c for c in COLORS if c != "brown"]
+        boxes, targets = [], []
+        for target, size in cells:
+            body = self.scatter_box(env, size, COLORS[colors[int(rng.integers(len(colors)))]])
+            if body is not None:
+                boxes.append(body)
+                targets.append(target)
+        self.add_packing_goal(boxes, targets, zone_pose, interior)
+
+
+class PackingBoxesPairs(PackingBoxesBase):
+    """Boxes of two named colours fill the container; four boxes of other colours are distractors."""
+
+    unseen = False
+    lang_template = None
+    done_sentence = "done packing blocks."
+    n_distractors = 4
+
+    def reset(self, env, rng: np.random.Generator) -> None:
+        super().reset(env, rng)
+        zone_pose, interior, cells = self.build_container(env, min_cells=2)
+        names = [c for c in split_colors(self.mode, self.unseen) if c != "brown"]
+        pick = rng.choice(len(names), 2, replace=False)
+        pair = [names[int(k)] for k in pick]
+        others = [c for c in names if c not in pair]
+        boxes, targets = [], []
+        for k, (target, size) in enumerate(cells):
+            color = pair[k] if k < 2 else pair[int(rng.integers(2))]  # both colours always present
+            body = self.scatter_box(env, size, COLORS[color])
+            if body is not None:
+                boxes.append(body)
+                targets.append(target)
+        for _ in range(self.n_distractors):
+            _, size = cells[int(rng.integers(len(cells)))]
+            self.scatter_box(env, size, COLORS[others[int(rng.integers(len(others)))]])
+        lang = f"pack all the {pair[0]} and {pair[1]} blocks into the brown box"
+        self.add_packing_goal(boxes, targets, zone_pose, interior, lang_goal=lang)
+
+
+@register("packing-boxes-pairs-seen-colors")
+class PackingBoxesPairsSeen(PackingBoxesPairs):
+    unseen = False
+
+
+@register("packing-boxes-pairs-unseen-colors")
+class PackingBoxesPairsUnseen(PackingBoxesPairs):
+    unseen = True

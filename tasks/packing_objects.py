@@ -1,0 +1,154 @@
+"""packing-{seen,unseen}-objects-{seq,group}: pack named everyday objects into a brown box.
+
+The object set and its seen/unseen split come from ``packing_assets`` (built-in set, or a user folder
+named by $CLIPORT_PACKING_OBJECTS). The container's interior is split into cells (k-d split); a packed
+object's target is its cell's centre; the zone metric counts the object's box inside the container.
+
+- "-seq": distinct objects, one per cell; some of them (at least one, not all) are packed one per
+  goal step, "pack the {object} in the brown box"; the others are distractors.
+- "-group": several copies of one object and distractors of other kinds; one goal step,
+  "pack all the {object} objects in the brown box".
+Seen variants use seen objects in every mode; unseen variants use unseen objects in val/test.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from cliport.env.transforms import multiply
+from cliport.tasks import register
+from cliport.tasks.base import GoalStep
+from cliport.tasks.packing_assets import (
+    FLOOR_THICKNESS,
+    ObjectSpec,
+    ZoneOracleMixin,
+    build_object,
+    centred_parts,
+    container,
+    kd_split,
+    object_set,
+    split_objects,
+)
+
+CELL_MIN_SIDE = 0.085  # every object's footprint diagonal is below this
+WALL_HEIGHT = 0.03
+
+
+class PackingObjects(ZoneOracleMixin):
+    """Shared scene and metric; subclasses choose the objects and the goal steps."""
+
+    unseen = False
+    max_steps = 10  # set per episode to targets + 1
+    lang_template = None
+    done_sentence = "done packing objects."
+    interior_range = (0.2, 0.3)
+
+    def reset(self, env, rng: np.random.Generator) -> None:
+        super().reset(env, rng)
+        self.half_extents: dict[int, np.ndarray] = {}
+        self.names: dict[int, str] = {}  # body id -> object name
+        interior = (float(rng.uniform(*self.interior_range)), float(rng.uniform(*self.interior_range)))
+        cells = kd_split(rng, interior, CELL_MIN_SIDE)
+        pose = self.random_pose((interior[0] + 0.01, interior[1] + 0.01, 0.0), margin=0.01)
+        if pose is None:
+            raise RuntimeError("no room on the table for the container")
+        self.zone_pose = ((pose[0][0], pose[0][1], 0.0), pose[1])
+        container(env, self.zone_pose, interior, WALL_HEIGHT)
+        self.zones = [(self.zone_pose, (interior[0], interior[1], WALL_HEIGHT))]
+        self.cells = [multiply(self.zone_pose, ((float(c[0]), float(c[1]), 0.0), (0, 0, 0, 1))) for c, _ in cells]
+        self.specs = split_objects(object_set(), self.mode, self.unseen)
+        self.build_goals(env, rng)
+
+    def build_goals(self, env, rng: np.random.Generator) -> None:
+        raise NotImplementedError
+
+    def spawn(self, env, spec: ObjectSpec) -> int | None:
+        """Drop an object of ``spec`` on a free table spot; its body id, or None when the table is full."""
+        pose = self.random_pose((0.08, 0.08, 0.0), margin=0.005)
+        if pose is None:
+            return None
+        _, half = centred_parts(spec)
+        body, _ = build_object(env, spec, ((pose[0][0], pose[0][1], half[2] + 0.001), pose[1]))
+        self.half_extents[body] = np.asarray(half)
+        self.names[body] = spec.name
+        return body
+
+    def target(self, cell: int, body: int) -> tuple:
+        """Target pose of ``body`` in cell ``cell``: the cell's centre, resting on the container floor."""
+        (x, y, _), quat = self.cells[cell]
+        return (x, y, FLOOR_THICKNESS + float(self.half_extents[body][2])), quat
+
+    def object_half_extents(self, body: int) -> np.ndarray:
+        """The object's box, known exactly from its parts (the base class would use the first collision
+        part or the world AABB, wrong for compound and rotated bodies)."""
+        if body in self.half_extents:
+            return self.half_extents[body]
+        return super().object_half_extents(body)
+
+    def zone_step(self, objects: list[int], targets: list, share: float, lang: str) -> GoalStep:
+        return GoalStep(
+            objects=objects,
+            matches=np.ones((len(objects), len(targets))),
+            targets=targets,
+            share=share,
+            symmetries=[0.0] * len(objects),
+            rotations=False,
+            metric="zone",
+            zones=self.zones,
+            lang_goal=lang,
+        )
+
+
+class PackingObjectsSeq(PackingObjects):
+    def build_goals(self, env, rng: np.random.Generator) -> None:
+        n = min(len(self.cells), len(self.specs))
+        chosen = [self.specs[int(k)] for k in rng.choice(len(self.specs), n, replace=False)]
+        n_pack = int(rng.integers(1, n)) if n > 1 else 1
+        bodies = []
+        for spec in chosen:
+            body = self.spawn(env, spec)
+            bodies.append(body)
+        steps = []
+        for k in range(n_pack):
+            if bodies[k] is None:
+                continue
+            lang = f"pack the {chosen[k].name} in the brown box"
+            steps.append((bodies[k], self.target(k, bodies[k]), lang))
+        for body, target, lang in steps:
+            self.add_goal(self.zone_step([body], [target], 1.0 / len(steps), lang))
+        self.max_steps = len(steps) + 1
+
+
+class PackingObjectsGroup(PackingObjects):
+    def build_goals(self, env, rng: np.random.Generator) -> None:
+        target_spec = self.specs[int(rng.integers(len(self.specs)))]
+        n_copies = int(rng.integers(2, min(len(self.cells), 3) + 1)) if len(self.cells) > 1 else 1
+        others = [s for s in self.specs if s.name != target_spec.name]
+        n_distractors = int(rng.integers(2, 4))
+        copies = [b for b in (self.spawn(env, target_spec) for _ in range(n_copies)) if b is not None]
+        for k in rng.choice(len(others), min(n_distractors, len(others)), replace=False):
+            self.spawn(env, others[int(k)])
+        targets = [self.target(k, b) for k, b in enumerate(copies)]
+        lang = f"pack all the {target_spec.name} objects in the brown box"
+        self.add_goal(self.zone_step(copies, targets, 1.0, lang))
+        self.max_steps = len(copies) + 1
+
+
+@register("packing-seen-objects-seq")
+class PackingSeenObjectsSeq(PackingObjectsSeq):
+    unseen = False
+
+
+@register("packing-unseen-objects-seq")
+class PackingUnseenObjectsSeq(PackingObjectsSeq):
+    unseen = True
+
+
+@register("packing-seen-objects-group")
+class PackingSeenObjectsGroup(PackingObjectsGroup):
+    unseen = False
+
+
+@register("packing-unseen-objects-group")
+class PackingUnseenObjectsGroup(PackingObjectsGroup):
+    unseen = True
