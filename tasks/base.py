@@ -87,6 +87,7 @@ class Task:
         """Build the scene and the goal steps; subclasses call ``super().reset(env, rng)`` first."""
         self.env = env
         self.rng = rng
+        self.object_sizes = {}
         self.goals = []
         self.progress = 0.0
         self._last_total = 0.0
@@ -169,8 +170,15 @@ class Task:
             inside |= np.all(np.abs(local[:, :2]) < np.asarray(zone_size[:2]) / 2, axis=1)
         return float(inside.mean())
 
+    def set_object_size(self, body: int, size: tuple[float, float, float]) -> None:
+        """Record a body's box size (its own frame) for the zone metric; needed for compound bodies."""
+        self.object_sizes[body] = tuple(size)  # type: ignore[assignment]
+
     def object_half_extents(self, body: int) -> np.ndarray:
-        """Half extents of a body's box in its own frame (its collision box, else its world AABB)."""
+        """Half extents of a body's box in its own frame: the recorded size, else its collision box,
+        else its world AABB (too large for rotated or off-centre bodies: record sizes instead)."""
+        if body in self.object_sizes:
+            return np.asarray(self.object_sizes[body]) / 2
         data = p.getCollisionShapeData(body, -1, physicsClientId=self.env.client)
         if data and data[0][2] == p.GEOM_BOX:
             return np.asarray(data[0][3]) / 2
@@ -220,9 +228,13 @@ class Task:
             return None
         step = self.goals[0]
         height, ids = self.env.oracle_heightmap()
-        matched = self.matched_pairs(step)
-        done_objects = {i for i, _ in matched}
-        taken = set() if step.replace else {j for _, j in matched}
+        if step.metric == "zone":  # an object wholly inside a zone is done wherever it sits
+            done_objects = {i for i, b in enumerate(step.objects) if self.zone_fraction(step, b) >= 1.0}
+            taken: set[int] = set()
+        else:
+            matched = self.matched_pairs(step)
+            done_objects = {i for i, _ in matched}
+            taken = set() if step.replace else {j for _, j in matched}
         candidates = []
         for i, body in enumerate(step.objects):
             if i in done_objects:

@@ -123,3 +123,20 @@ def test_groups_name_registered_tasks():
     assert tasks.resolve("multi-language-conditioned-seen")[0] == "align-rope"
     with pytest.raises(KeyError, match="multi-task group"):
         tasks.make("multi-ravens")
+
+
+def test_recorded_size_drives_zone_fraction_and_oracle_skips_packed_objects(env):
+    env.reset(0)
+    task = env.task
+    inside = _block(env, (0.5, 0.0))
+    outside = _block(env, (0.35, 0.3))
+    zone = (((0.5, 0.0, 0.0), (0, 0, 0, 1)), (0.1, 0.1, 0.0))
+    targets = [((0.5, 0.0, 0.02), (0, 0, 0, 1)), ((0.52, 0.02, 0.02), (0, 0, 0, 1))]
+    step = GoalStep([inside, outside], np.eye(2), targets, share=1.0, metric="zone", zones=[zone])
+    task.add_goal(step)
+    task.set_object_size(inside, (0.2, 0.04, 0.04))  # pretend it is long: half of it sticks out
+    assert task.zone_fraction(step, inside) == pytest.approx(5 / 11)
+    task.object_sizes.clear()
+    assert task.zone_fraction(step, inside) == 1.0
+    action = task.oracle_act()
+    assert action is not None and np.linalg.norm(np.subtract(action["pose0"][0][:2], (0.35, 0.3))) < 0.03
