@@ -121,6 +121,11 @@ class Environment:
             raise ValueError(f"renderer must be 'auto', 'egl' or 'cpu', got {choice!r}")
         if choice == "cpu":
             return p.ER_TINY_RENDERER, "cpu (TinyRenderer)"
+        if choice == "auto" and not _gpu_present():
+            # Without a GPU the plugin renders through Mesa's llvmpipe, which loads its own LLVM into
+            # the process; importing triton (torch does when building an optimiser) next to it
+            # segfaults. TinyRenderer is as fast at the reduced resolution and safe.
+            return p.ER_TINY_RENDERER, "cpu (TinyRenderer; no GPU)"
         spec = importlib.util.find_spec("eglRenderer")
         plugin = -1
         if spec is not None and spec.origin:
