@@ -54,8 +54,8 @@ def load_agent(
     """
     payload = torch.load(path, map_location="cpu", weights_only=True)
     config = dict(payload["config"])
-    if clip_weights is not None or payload.get("clip_weights") is not None:
-        config["clip_weights"] = clip_weights or payload["clip_weights"]
+    if "clip_weights" in config:  # agents without CLIP ignore a clip_weights override
+        config["clip_weights"] = clip_weights or payload.get("clip_weights") or config["clip_weights"]
     agent = make_agent(payload["agent"], config)
     agent.load_trainable_state_dict(payload["state_dict"])
     return agent.to(device)

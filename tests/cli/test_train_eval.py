@@ -36,10 +36,20 @@ def _train_args(data_dir, run_dir, agent, steps=10, extra=()):
     ]  # fmt: skip
 
 
+@pytest.fixture(scope="module")
+def runs(data_dir, tmp_path_factory):
+    """One 10-step run of each agent, validated on 1 episode per checkpoint (shared by the tests)."""
+    root = tmp_path_factory.mktemp("runs")
+    out = {}
+    for agent in ("transporter_only", "two_stream"):
+        out[agent] = str(root / agent)
+        _run(train_cli.main, _train_args(data_dir, out[agent], agent))
+    return out
+
+
 @pytest.mark.parametrize("agent", ["transporter_only", "two_stream"])
-def test_train_then_eval(data_dir, tmp_path, agent, capsys):
-    run_dir = str(tmp_path / agent)
-    _run(train_cli.main, _train_args(data_dir, run_dir, agent))
+def test_train_then_eval(runs, agent, capsys):
+    run_dir = runs[agent]
     assert trainer.saved_checkpoint_steps(run_dir) == [5, 10]
     with open(os.path.join(run_dir, "config.json")) as f:
         assert json.load(f)["agent"] == agent
@@ -80,6 +90,9 @@ def test_resume_after_interruption(data_dir, tmp_path, monkeypatch):
     _run(train_cli.main, ["--run-dir", run_dir, "--resume", "--no-progress"])
     assert torch.load(trainer.checkpoint_file(run_dir, "last"), weights_only=False)["trainer"]["step"] == 10
     assert trainer.saved_checkpoint_steps(run_dir) == [5, 10]
+    with pytest.raises(SystemExit) as stop:  # trained without validation: no "best" to pick
+        _run(eval_cli.main, ["--run-dir", run_dir, "--checkpoint", "best"])
+    assert stop.value.code == 2
 
 
 @pytest.mark.parametrize(
@@ -114,16 +127,15 @@ def test_bad_input_is_one_clear_line(data_dir, tmp_path, capsys, main, args, mes
     assert stop.value.code == 2 and len(err) == 1 and message in err[0], err
 
 
-def test_eval_rejects_other_agent_and_empty_lang(data_dir, tmp_path, capsys):
-    run_dir = str(tmp_path / "t")
-    _run(train_cli.main, _train_args(data_dir, run_dir, "transporter_only", steps=5, extra=["--val-episodes", "0"]))
+def test_eval_rejects_other_agent_and_empty_lang(runs, capsys):
+    run_dir = runs["transporter_only"]
     for args, message in [
         (
             ["--agent", "two_stream", "--checkpoint", "last"],
             "is a checkpoint of agent 'transporter_only', not 'two_stream'",
         ),
         (["--lang", "  "], "--lang must be a non-empty instruction"),
-        (["--checkpoint", "best"], "no validation results"),
+        (["--checkpoint", "7"], "--checkpoint must be best, last, all or one of the saved steps [5, 10]"),
     ]:
         capsys.readouterr()
         with pytest.raises(SystemExit) as stop:
@@ -135,13 +147,12 @@ def test_eval_rejects_other_agent_and_empty_lang(data_dir, tmp_path, capsys):
     assert "is a run of agent 'transporter_only'" in capsys.readouterr().err
 
 
-def test_free_form_instruction_writes_video_and_heatmaps(data_dir, tmp_path, capsys):
-    run_dir = str(tmp_path / "lang")
-    _run(train_cli.main, _train_args(data_dir, run_dir, "two_stream", steps=5, extra=["--val-episodes", "0"]))
+def test_free_form_instruction_writes_video_and_heatmaps(runs, tmp_path, capsys):
     capsys.readouterr()
     out = str(tmp_path / "out")
-    _run(eval_cli.main, ["--run-dir", run_dir, "--checkpoint", "last", "--lang", "put the block in the fixture",
-                         "--seed", "3", "--out", out, "--camera-scale", "0.5"])  # fmt: skip
+    lang = "put the block in the fixture"
+    args = ["--run-dir", runs["two_stream"], "--checkpoint", "last", "--lang", lang, "--seed", "3", "--out", out]
+    _run(eval_cli.main, [*args, "--camera-scale", "0.5"])
     result = json.loads(capsys.readouterr().out)
     assert result["instruction"] == "put the block in the fixture" and result["seed"] == 3
     assert os.path.getsize(result["video"]) > 1000 and result["video"].endswith(".gif")
