@@ -2,7 +2,14 @@
 
 from __future__ import annotations
 
+import math
+import os
+
+import numpy as np
 import pytest
+
+from cliport.data.episode_io import save_episode
+from cliport.env.transforms import yaw_to_quat
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
@@ -22,3 +29,44 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
                 cuda = torch.cuda.is_available()
             if not cuda:
                 item.add_marker(pytest.mark.skip(reason="gpu: no CUDA device"))
+
+
+def _synthetic_dataset(root: str, n_episodes: int = 3) -> str:
+    """Episodes whose images carry unique markers at the pick and place pixels."""
+    folder = os.path.join(root, "place-red-in-green-train")
+    os.makedirs(folder)
+    rng = np.random.default_rng(0)
+    for e in range(n_episodes):
+        steps = []
+        for _ in range(2):
+            color = rng.integers(0, 50, size=(320, 160, 3), dtype=np.uint8)
+            height = np.zeros((320, 160), np.float32)
+            pick, place = (
+                (int(rng.integers(40, 280)), int(rng.integers(20, 140))),
+                (
+                    int(rng.integers(40, 280)),
+                    int(rng.integers(20, 140)),
+                ),
+            )
+            # 3x3 markers: a nearest-neighbour rotation moves a scene point by up to ~0.7 px.
+            color[pick[0] - 1 : pick[0] + 2, pick[1] - 1 : pick[1] + 2] = (255, 0, 0)
+            color[place[0] - 1 : place[0] + 2, place[1] - 1 : place[1] + 2] = (0, 255, 0)
+            height[pick[0] - 1 : pick[0] + 2, pick[1] - 1 : pick[1] + 2] = 0.05
+            pose0 = ((0.25 + pick[1] * 0.003125, -0.5 + pick[0] * 0.003125, 0.05), yaw_to_quat(0.3))
+            pose1 = ((0.25 + place[1] * 0.003125, -0.5 + place[0] * 0.003125, 0.05), yaw_to_quat(0.3 + math.pi / 2))
+            steps.append(
+                {
+                    "obs": {"color": color, "height": height},
+                    "action": {"pose0": pose0, "pose1": pose1},
+                    "reward": 0.5,
+                    "lang_goal": f"episode {e}",
+                }
+            )
+        save_episode(os.path.join(folder, f"{2 * e:06d}.npz"), steps, {"task": "place-red-in-green", "seed": 2 * e})
+    return folder
+
+
+@pytest.fixture
+def make_synthetic_dataset():
+    """A function (root, n_episodes) writing place-red-in-green episodes with markers at the action pixels."""
+    return _synthetic_dataset

@@ -156,6 +156,8 @@ def train(config: TrainConfig, resume: bool = False, progress: bool = True) -> d
         raise TrainError(f"run folder {run_dir} already holds a run: pass --resume to continue it, or choose --run-dir")
     if resume and not os.path.exists(last_path):
         raise TrainError(f"nothing to resume in {run_dir}: no checkpoints/last.pt")
+    if world > 1:
+        dist.barrier()  # every rank has checked the run folder before rank 0 writes into it
     device = resolve_device(config.device)
     if device.type == "cuda" and world > 1:
         device = torch.device("cuda", local_rank)

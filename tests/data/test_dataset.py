@@ -8,47 +8,11 @@ from torch.utils.data import DataLoader
 
 from cliport.data import augment
 from cliport.data.dataset import DatasetError, DemoDataset, rotation_bin
-from cliport.data.episode_io import save_episode
 from cliport.env.transforms import yaw_to_quat
 
 
-def _synthetic_dataset(root, n_episodes=3):
-    """Episodes whose images carry unique markers at the pick and place pixels."""
-    folder = os.path.join(root, "place-red-in-green-train")
-    os.makedirs(folder)
-    rng = np.random.default_rng(0)
-    for e in range(n_episodes):
-        steps = []
-        for _ in range(2):
-            color = rng.integers(0, 50, size=(320, 160, 3), dtype=np.uint8)
-            height = np.zeros((320, 160), np.float32)
-            pick, place = (
-                (int(rng.integers(40, 280)), int(rng.integers(20, 140))),
-                (
-                    int(rng.integers(40, 280)),
-                    int(rng.integers(20, 140)),
-                ),
-            )
-            # 3x3 markers: a nearest-neighbour rotation moves a scene point by up to ~0.7 px.
-            color[pick[0] - 1 : pick[0] + 2, pick[1] - 1 : pick[1] + 2] = (255, 0, 0)
-            color[place[0] - 1 : place[0] + 2, place[1] - 1 : place[1] + 2] = (0, 255, 0)
-            height[pick[0] - 1 : pick[0] + 2, pick[1] - 1 : pick[1] + 2] = 0.05
-            pose0 = ((0.25 + pick[1] * 0.003125, -0.5 + pick[0] * 0.003125, 0.05), yaw_to_quat(0.3))
-            pose1 = ((0.25 + place[1] * 0.003125, -0.5 + place[0] * 0.003125, 0.05), yaw_to_quat(0.3 + math.pi / 2))
-            steps.append(
-                {
-                    "obs": {"color": color, "height": height},
-                    "action": {"pose0": pose0, "pose1": pose1},
-                    "reward": 0.5,
-                    "lang_goal": f"episode {e}",
-                }
-            )
-        save_episode(os.path.join(folder, f"{2 * e:06d}.npz"), steps, {"task": "place-red-in-green", "seed": 2 * e})
-    return folder
-
-
-def test_augmentation_keeps_labels_on_scene_points(tmp_path):
-    _synthetic_dataset(str(tmp_path))
+def test_augmentation_keeps_labels_on_scene_points(tmp_path, make_synthetic_dataset):
+    make_synthetic_dataset(str(tmp_path))
     ds = DemoDataset(str(tmp_path), "place-red-in-green", n_demos=3, augment=True)
     torch.manual_seed(0)
     moved = 0
@@ -76,8 +40,8 @@ def test_se2_transform_of_pixels_matches_image_warp():
         assert out[augment.transform_pixel(m, pix)] == 255
 
 
-def test_subset_is_seeded_and_loader_batches(tmp_path):
-    _synthetic_dataset(str(tmp_path), n_episodes=4)
+def test_subset_is_seeded_and_loader_batches(tmp_path, make_synthetic_dataset):
+    make_synthetic_dataset(str(tmp_path), n_episodes=4)
     a = DemoDataset(str(tmp_path), "place-red-in-green", n_demos=2, seed=1)
     b = DemoDataset(str(tmp_path), "place-red-in-green", n_demos=2, seed=1)
     assert a.files == b.files and len(a) == 4
@@ -92,10 +56,10 @@ def test_rotation_bin_convention():
     assert rotation_bin(yaw_to_quat(1.0), yaw_to_quat(1.0 - math.radians(10)), 36) == 35
 
 
-def test_clear_errors(tmp_path):
+def test_clear_errors(tmp_path, make_synthetic_dataset):
     with pytest.raises(DatasetError, match="place-red-in-green-train"):
         DemoDataset(str(tmp_path), "place-red-in-green")
-    folder = _synthetic_dataset(str(tmp_path), n_episodes=2)
+    folder = make_synthetic_dataset(str(tmp_path), n_episodes=2)
     with pytest.raises(DatasetError, match=f"{folder} has 2 episodes but n_demos=5"):
         DemoDataset(str(tmp_path), "place-red-in-green", n_demos=5)
     with open(os.path.join(folder, "000002.npz"), "r+b") as f:
