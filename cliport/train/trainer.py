@@ -4,7 +4,7 @@ resume point, metrics, optional DDP (torchrun) and mixed precision, then validat
 Run folder layout::
 
     RUN/config.json             the resolved TrainConfig
-    RUN/metrics.csv             step, losses, throughput
+    RUN/metrics.csv             step, losses, throughput (and RUN/tensorboard/ when tensorboard is installed)
     RUN/checkpoints/step-001000.pt ...   scheduled checkpoints (agent weights + config)
     RUN/checkpoints/last.pt     rolling resume point (also holds the optimiser and step)
     RUN/val.json                validation success of every scheduled checkpoint and the best one
@@ -129,6 +129,15 @@ def _distributed() -> tuple[int, int, int]:
     return dist.get_rank(), world, local
 
 
+def _tensorboard_writer(path: str):
+    """A TensorBoard SummaryWriter when the tensorboard package is installed, else None (CSV only)."""
+    try:
+        from torch.utils.tensorboard import SummaryWriter
+    except ImportError:
+        return None
+    return SummaryWriter(path)
+
+
 def _batches(loader: DataLoader):
     while True:
         yield from loader
@@ -221,6 +230,7 @@ def train(config: TrainConfig, resume: bool = False, progress: bool = True) -> d
             }
         _atomic_torch_save(payload, checkpoint_file(run_dir, kind))
 
+    tensorboard = _tensorboard_writer(os.path.join(run_dir, "tensorboard")) if rank == 0 else None
     bar = tqdm(total=config.n_steps, initial=step, desc=f"train {config.agent}", disable=not progress or rank != 0)
     start, window_start, window_steps = time.perf_counter(), time.perf_counter(), 0
     sums = {"loss": 0.0, "pick_loss": 0.0, "place_loss": 0.0}
@@ -255,6 +265,9 @@ def train(config: TrainConfig, resume: bool = False, progress: bool = True) -> d
                     if writer is not None:
                         writer.writerow(row)
                         metrics_file.flush()
+                    if tensorboard is not None:
+                        for key in ("loss", "pick_loss", "place_loss", "samples_per_second"):
+                            tensorboard.add_scalar(f"train/{key}", row[key], step)
                     bar.set_postfix(loss=f"{row['loss']:.3f}", steps_s=f"{row['steps_per_second']:.2f}")
                     sums = dict.fromkeys(sums, 0.0)
                     window_start, window_steps = time.perf_counter(), 0
@@ -267,6 +280,8 @@ def train(config: TrainConfig, resume: bool = False, progress: bool = True) -> d
         raise
     finally:
         bar.close()
+        if tensorboard is not None:
+            tensorboard.close()
     summary: dict[str, Any] = {"run_dir": run_dir, "steps": step, "checkpoints": saved_checkpoint_steps(run_dir)}
     if rank == 0 and config.val_episodes > 0:
         summary["validation"] = validate(run_dir, config, device=device, progress=progress)
