@@ -15,10 +15,6 @@ import os
 import tempfile
 import time
 
-import torch
-from torch.utils.data import DataLoader
-
-from cliport.data.dataset import DemoDataset
 from cliport.data.generate import DemoConfig, generate
 
 REFERENCE_BYTES_PER_STEP = 6.45e6
@@ -48,6 +44,12 @@ def main() -> None:
                 "mb_per_step": rates[1]["mb_per_step"],
                 "times_smaller_than_raw_images": round(REFERENCE_BYTES_PER_STEP / (rates[1]["mb_per_step"] * 1e6), 1),
             }
+        # torch is imported only here: spawned demo workers re-import this script and should not pay for it.
+        import torch
+        from torch.utils.data import DataLoader
+
+        from cliport.data.dataset import DemoDataset
+
         dataset = DemoDataset(os.path.join(root, "w1"), args.tasks[0], n_demos=args.n, augment=True)
         torch.manual_seed(0)
         loader = DataLoader(dataset, batch_size=8, shuffle=True, num_workers=2, persistent_workers=True)
