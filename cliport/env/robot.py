@@ -10,6 +10,22 @@ import pybullet as p
 from cliport.env import urdf
 from cliport.env.transforms import Pose
 
+JOINT_LIMIT = 2 * np.pi
+
+
+def wrap_near(q: np.ndarray, current: np.ndarray) -> np.ndarray:
+    """``q`` with joints 2..5 (elbow and wrists) moved by whole turns to the angle nearest ``current``.
+
+    IK answers are only defined up to a full turn of those joints; wrapping to (-pi, pi] instead
+    makes the wrist spin almost a full circle when the target crosses +-180 degrees (turning the
+    held object with it). The result stays inside the +-2 pi joint limits.
+    """
+    q = np.array(q, dtype=float)
+    near = current[2:] + np.remainder(q[2:] - current[2:] + np.pi, 2 * np.pi) - np.pi
+    near = np.where(near > JOINT_LIMIT, near - 2 * np.pi, near)
+    q[2:] = np.where(near < -JOINT_LIMIT, near + 2 * np.pi, near)
+    return q
+
 
 class UR5:
     """A UR5 with a suction cup or spatula; joint motion toward IK targets, stepped in simulation."""
@@ -95,8 +111,7 @@ class UR5:
         finally:
             for j, s in zip(self.joints, saved, strict=True):
                 p.resetJointState(self.body, j, s[0], targetVelocity=s[1], physicsClientId=self.client)
-        q[2:] = (q[2:] + np.pi) % (2 * np.pi) - np.pi
-        return q
+        return wrap_near(q, np.array([s[0] for s in saved]))
 
     def movej(self, target: np.ndarray, speed: float = 0.01, budget: int = 2400) -> bool:
         """Step toward joint target ``target`` by at most ``speed`` rad per step; False if over budget."""
