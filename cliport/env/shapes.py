@@ -133,12 +133,18 @@ def compound(
         if part.get("collide", True):
             elements.append(f"<collision>{_origin(part)}{geom}</collision>")
     inertia = max(mass, 1e-3) * 1e-4
-    urdf = (
-        '<?xml version="1.0"?><robot name="compound"><link name="base">'
-        f'<contact><lateral_friction value="{friction}"/></contact>'
-        f'<inertial><origin xyz="0 0 0"/><mass value="{mass}"/>'
-        f'<inertia ixx="{inertia}" ixy="0" ixz="0" iyy="{inertia}" iyz="0" izz="{inertia}"/></inertial>'
-        f"{''.join(elements)}</link></robot>"
+    # One element per line: PyBullet's URDF parser fails on lines longer than about 10k characters.
+    urdf = "\n".join(
+        [
+            '<?xml version="1.0"?>',
+            '<robot name="compound"><link name="base">',
+            f'<contact><lateral_friction value="{friction}"/></contact>',
+            f'<inertial><origin xyz="0 0 0"/><mass value="{mass}"/>',
+            f'<inertia ixx="{inertia}" ixy="0" ixz="0" iyy="{inertia}" iyz="0" izz="{inertia}"/></inertial>',
+            *elements,
+            "</link></robot>",
+            "",
+        ]
     )
     path = _write_once(asset_dir, ".urdf", urdf)
     body = p.loadURDF(path, pose[0], pose[1], useFixedBase=mass == 0.0, physicsClientId=client)
