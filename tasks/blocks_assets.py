@@ -111,23 +111,27 @@ def stand_parts(colors: tuple[Color, Color, Color]) -> list[dict]:
 def ring_parts(outer: float, inner: float = RING_INNER, height: float = RING_HEIGHT, segments: int = 16) -> list[dict]:
     """A ring (annulus) of ``segments`` wall boxes from z = 0 to ``height``; the hole's inradius is ``inner``.
 
-    Each box spans the radial band [inner, outer] at its centre line and is as long as the outer
-    polygon's side, so neighbouring boxes close the wall without gaps.
+    Visual boxes are as long as the outer polygon's side, so the wall looks closed. Collision boxes
+    are as long as the inner polygon's side, so that no two of them overlap: overlapping boxes let a
+    ring lying on another catch it on a sideways contact and lift it along when picked.
     """
     width = outer - inner
     mid = (outer + inner) / 2
-    side = 2 * outer * math.tan(math.pi / segments)
     parts = []
-    for k in range(segments):
-        a = 2 * math.pi * k / segments
-        parts.append(
-            {
-                "type": "box",
-                "size": (width, side, height),
-                "position": (mid * math.cos(a), mid * math.sin(a), height / 2),
-                "rpy": (0.0, 0.0, a),
-            }
-        )
+    tan = math.tan(math.pi / segments)
+    for visual, side in ((True, 2 * outer * tan), (False, 2 * inner * tan)):
+        for k in range(segments):
+            a = 2 * math.pi * k / segments
+            parts.append(
+                {
+                    "type": "box",
+                    "size": (width, side, height),
+                    "position": (mid * math.cos(a), mid * math.sin(a), height / 2),
+                    "rpy": (0.0, 0.0, a),
+                    "visual": visual,
+                    "collide": not visual,
+                }
+            )
     return parts
 
 

@@ -1,5 +1,6 @@
 import re
 
+import numpy as np
 import pybullet as p
 import pytest
 
@@ -77,3 +78,18 @@ def test_train_scenes_never_show_unseen_colors(variant):
             }
             assert not rgb & unseen
             assert not any(c in g.lang_goal for g in task.goals for c in UNSEEN_ONLY)
+
+
+def test_picking_the_top_ring_leaves_the_others():
+    """Seed 14 once lifted the middle ring along with the top one (overlapping collision boxes)."""
+    task = tasks.make("towers-of-hanoi")
+    with Environment(EnvConfig.defaults(camera_scale=0.5), task=task) as env:
+        obs = env.reset(14)
+        rings = env.objects["rigid"]
+        before = [p.getBasePositionAndOrientation(b, physicsClientId=env.client)[0] for b in rings[1:]]
+        _, reward, _, _ = env.step(task.oracle_act(obs))
+        after = [p.getBasePositionAndOrientation(b, physicsClientId=env.client)[0] for b in rings[1:]]
+    assert reward == pytest.approx(1 / 7)
+    after, before = np.array(after), np.array(before)
+    assert np.all(np.abs(after[:, 2] - before[:, 2]) < 2e-3)  # still stacked on the stand
+    assert np.all(np.linalg.norm(after[:, :2] - before[:, :2], axis=1) < 0.008)  # still around the rod
