@@ -68,7 +68,8 @@ def _write_json(path: str, data: Any) -> None:
 _ENV = None
 
 
-def _worker_init(task_name: str, mode: str, camera_scale: float, raw_images: bool) -> None:
+def init_worker(task_name: str, mode: str, camera_scale: float, raw_images: bool = False) -> None:
+    """Give this process its environment with the task (one PyBullet client per process)."""
     global _ENV
     from cliport import tasks
     from cliport.env.environment import EnvConfig, Environment
@@ -76,6 +77,15 @@ def _worker_init(task_name: str, mode: str, camera_scale: float, raw_images: boo
     _ENV = Environment(
         EnvConfig.defaults(camera_scale=camera_scale, raw_images=raw_images), task=tasks.make(task_name, mode)
     )
+
+
+def check_seed(seed: int) -> dict[str, Any]:
+    """Run the oracle on ``seed`` in this worker's environment (see :func:`init_worker`) without saving."""
+    from cliport.data.rollout import oracle_policy, run_episode
+
+    assert _ENV is not None, "init_worker was not called in this process"
+    episode = run_episode(_ENV, seed, oracle_policy(_ENV))
+    return {"seed": seed, "success": episode.success, "total_reward": episode.total_reward, "seconds": episode.seconds}
 
 
 def _worker_run(seed: int, path: str, meta: dict[str, Any], raw_images: bool) -> dict[str, Any]:
@@ -177,13 +187,13 @@ def generate(
     init_args = (task, mode, config.camera_scale, config.raw_images)
     try:
         if target > 0 and config.workers == 1:
-            _worker_init(*init_args)
+            init_worker(*init_args)
             while saved_before + n_saved < target and (seed := next_seed()) is not None:
                 record(_worker_run(seed, episode_path(folder, seed), meta, config.raw_images))
         elif target > 0:
             ctx = mp.get_context("spawn")
             with cf.ProcessPoolExecutor(
-                config.workers, mp_context=ctx, initializer=_worker_init, initargs=init_args
+                config.workers, mp_context=ctx, initializer=init_worker, initargs=init_args
             ) as pool:
                 pending: set[cf.Future] = set()
                 exhausted = False
