@@ -94,6 +94,28 @@ def _is_torchscript(path: Path) -> bool:
         return any(name.endswith("constants.pkl") or "/code/" in name for name in archive.namelist())
 
 
+def calibrate_batch_norm(model: nn.Module, n_images: int = 4, size: int = 128) -> None:
+    """Set the image trunk's batch-norm statistics from seeded noise images (random weights only).
+
+    Freshly initialised batch norms hold mean 0 / variance 1, under which the random trunk's
+    activations shrink about a thousandfold by layer4, so a random "semantic stream" carries almost
+    no signal. One pass in training mode over normalised noise gives every layer unit-scale inputs,
+    as trained weights do; the result is deterministic.
+    """
+    norms = [m for m in model.visual.modules() if isinstance(m, nn.BatchNorm2d)]
+    for m in norms:
+        m.reset_running_stats()
+        m.momentum = None  # cumulative average: one batch sets the statistics exactly
+    generator = torch.Generator().manual_seed(RANDOM_SEED)
+    images = torch.randn(n_images, 3, size, size, generator=generator)
+    model.visual.train()
+    with torch.no_grad():
+        model.visual.forward_intermediates(images, intermediates_only=True)
+    model.visual.eval()
+    for m in norms:
+        m.momentum = 0.1
+
+
 def build_clip_model(source: str) -> nn.Module:
     """Build the open_clip RN50 model with weights from `source` ("openai", a file path, or "random")."""
     import open_clip
@@ -101,7 +123,9 @@ def build_clip_model(source: str) -> nn.Module:
     if source == "random":
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(RANDOM_SEED)
-            return open_clip.create_model(MODEL_NAME, pretrained=None)
+            model = open_clip.create_model(MODEL_NAME, pretrained=None)
+            calibrate_batch_norm(model)
+            return model
     if source == "openai":
         cached = _cached_openai_file()
         if cached is not None:

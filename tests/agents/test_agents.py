@@ -192,7 +192,7 @@ def test_two_stream_learns_two_instructions_on_one_image() -> None:
         (RED_BLOCK, GREEN_BOWL, 3, "put the red block in the green bowl"),
         (BLUE_BLOCK, YELLOW_BOWL, 6, "put the blue block in the yellow bowl"),
     ]
-    assert _fit(agent, targets, max_steps=300, check_every=10) is not None
+    assert _fit(agent, targets, max_steps=400, check_every=10) is not None
 
 
 @pytest.mark.parametrize("name", ["transporter_only", "two_stream"])

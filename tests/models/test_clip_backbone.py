@@ -85,3 +85,12 @@ def test_sentence_features_are_cached_per_string(clip: FrozenCLIP) -> None:
     assert torch.equal(feats[0], feats[2])
     assert not torch.allclose(feats[0], feats[1])
     assert "pack the box" in clip._sentence_cache
+
+
+def test_random_trunk_features_are_unit_scale(clip: FrozenCLIP) -> None:
+    """Calibrated batch norms: a random trunk's features do not vanish with depth (they shrank ~1000x)."""
+    feats = clip.image_features(torch.rand(2, 3, 64, 96, generator=torch.Generator().manual_seed(1)))
+    scales = [f.abs().mean().item() for f in feats]
+    assert all(0.1 < s < 10 for s in scales), scales
+    norms = [m for m in clip.model.visual.modules() if isinstance(m, torch.nn.BatchNorm2d)]
+    assert all(m.momentum == 0.1 and not m.training for m in norms)
