@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 
+from cliport.env import shapes
 from cliport.env.shapes import Color
 
 BLOCK = (0.04, 0.04, 0.04)
@@ -115,24 +116,11 @@ def ring_parts(outer: float, inner: float = RING_INNER, height: float = RING_HEI
     are as long as the inner polygon's side, so that no two of them overlap: overlapping boxes let a
     ring lying on another catch it on a sideways contact and lift it along when picked.
     """
-    width = outer - inner
-    mid = (outer + inner) / 2
-    parts = []
     tan = math.tan(math.pi / segments)
-    for visual, side in ((True, 2 * outer * tan), (False, 2 * inner * tan)):
-        for k in range(segments):
-            a = 2 * math.pi * k / segments
-            parts.append(
-                {
-                    "type": "box",
-                    "size": (width, side, height),
-                    "position": (mid * math.cos(a), mid * math.sin(a), height / 2),
-                    "rpy": (0.0, 0.0, a),
-                    "visual": visual,
-                    "collide": not visual,
-                }
-            )
-    return parts
+    mid = (outer + inner) / 2
+    visual = shapes.ring_wall_parts(mid, outer - inner, 2 * outer * tan, height, segments, collide=False)
+    collision = shapes.ring_wall_parts(mid, outer - inner, 2 * inner * tan, height, segments, visual=False)
+    return visual + collision
 
 
 # Box-corner marker: an L of two thin strips, 2.5 cm legs, 5 mm wide, drawn just outside the corner.

@@ -151,6 +151,29 @@ def compound(
     return body
 
 
+def ring_wall_parts(
+    mid_radius: float, thickness: float, length: float, height: float, segments: int, **flags: bool
+) -> list[dict]:
+    """``segments`` box parts (for :func:`compound`) standing in a circle from z = 0 to ``height``.
+
+    Each box is ``thickness`` deep radially, centred on ``mid_radius``, and ``length`` long
+    tangentially; ``flags`` (``visual`` / ``collide``) are copied into every part.
+    """
+    parts = []
+    for k in range(segments):
+        a = 2 * math.pi * k / segments
+        parts.append(
+            {
+                "type": "box",
+                "size": (thickness, length, height),
+                "position": (mid_radius * math.cos(a), mid_radius * math.sin(a), height / 2),
+                "rpy": (0.0, 0.0, a),
+                **flags,
+            }
+        )
+    return parts
+
+
 def bowl(
     client: int,
     asset_dir: str,
@@ -163,18 +186,8 @@ def bowl(
 ) -> int:
     """A static, concave bowl: a flat base disc and a ring of wall slabs (outer radius ``radius``)."""
     parts: list[dict] = [{"type": "cylinder", "radius": radius, "height": 0.004, "position": (0, 0, 0.002)}]
-    mid = radius - wall_thickness / 2
     slab = 2 * radius * math.tan(math.pi / segments)
-    for k in range(segments):
-        a = 2 * math.pi * k / segments
-        parts.append(
-            {
-                "type": "box",
-                "size": (wall_thickness, slab, wall_height),
-                "position": (mid * math.cos(a), mid * math.sin(a), wall_height / 2),
-                "rpy": (0.0, 0.0, a),
-            }
-        )
+    parts += ring_wall_parts(radius - wall_thickness / 2, wall_thickness, slab, wall_height, segments)
     return compound(client, asset_dir, parts, pose, color=color, mass=0.0)
 
 
