@@ -2,8 +2,16 @@
 
 Usage: python scripts/oracle_check.py --task place-red-in-green --episodes 100 [--mode train] [--workers 2]
        python scripts/oracle_check.py --task towers-of-hanoi --seeds 14 28   (re-run chosen seeds)
+       python scripts/oracle_check.py --task palletizing-boxes --episodes 100 --record-dir docs/oracle
 Uses the same rollout code as demonstration generation (one environment per worker process).
 Success = total reward > 0.99. A task group name (e.g. multi-ravens) prints one line per task.
+
+With ``--record-dir DIR`` every finished seed is appended to ``DIR/TASK.jsonl`` as one JSON line the
+moment it is done, and seeds already there (same mode and camera scale) are not run again: an interrupted check
+resumes where it stopped, several runs can fill one file, and the summary covers recorded and new
+seeds alike. ``scripts/oracle_table.py`` turns the files under ``docs/oracle/`` into the README table.
+Records do not say which code produced them beyond the version and commit: after changing a task,
+start a new file (or re-run the seeds in question with ``--seeds``, which always re-runs them).
 """
 
 from __future__ import annotations
@@ -12,14 +20,49 @@ import argparse
 import concurrent.futures as cf
 import json
 import multiprocessing as mp
+import os
 import statistics
+import subprocess
 import sys
 
 from tqdm import tqdm
 
-from cliport import tasks
+from cliport import __version__, tasks
 from cliport.data import generate
 from cliport.data.seeds import episode_seeds
+
+
+def _commit() -> str | None:
+    """The checkout's short commit hash, "+dirty" when the code has uncommitted changes; None outside git."""
+    here = os.path.dirname(os.path.abspath(__file__))
+    code = ["git", "status", "--porcelain", "--untracked-files=no", "--", "cliport", "tasks", "configs", "scripts"]
+    try:
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=here, capture_output=True, text=True)
+        dirty = subprocess.run(code, cwd=os.path.dirname(here), capture_output=True)
+    except OSError:
+        return None
+    if head.returncode != 0:
+        return None
+    return head.stdout.strip() + ("+dirty" if dirty.stdout.strip() else "")
+
+
+def read_records(path: str, task_name: str, mode: str, camera_scale: float) -> dict[int, dict]:
+    """Recorded per-seed results of one task, mode and camera scale in a JSON-lines file, by seed.
+
+    A torn last line (a run killed mid-write) is ignored; its seed is simply run again.
+    """
+    records: dict[int, dict] = {}
+    if not os.path.exists(path):
+        return records
+    with open(path) as f:
+        for line in f:
+            try:
+                r = json.loads(line)
+            except json.JSONDecodeError:
+                continue
+            if r.get("task") == task_name and r.get("mode") == mode and r.get("camera_scale") == camera_scale:
+                records[int(r["seed"])] = r
+    return records
 
 
 def check(
@@ -30,24 +73,61 @@ def check(
     progress: bool = True,
     workers: int = 1,
     seeds: list[int] | None = None,
+    record: str | None = None,
 ) -> dict:
-    """Oracle statistics of ``task_name`` over the first ``episodes`` protocol seeds of ``mode`` (or ``seeds``)."""
+    """Oracle statistics of ``task_name`` over the first ``episodes`` protocol seeds of ``mode`` (or ``seeds``).
+
+    With ``record``, results are appended to that JSON-lines file as they finish and protocol seeds
+    already recorded there are taken from it instead of being run (chosen ``seeds`` always run).
+    """
+    chosen = seeds is not None
     seeds = seeds if seeds is not None else episode_seeds(mode, episodes)
+    done: dict[int, dict] = {}
+    if record is not None and not chosen:
+        recorded = read_records(record, task_name, mode, camera_scale)
+        done = {s: recorded[s] for s in seeds if s in recorded}
+    todo = [s for s in seeds if s not in done]
+    sink = None
+    if record is not None:
+        os.makedirs(os.path.dirname(os.path.abspath(record)), exist_ok=True)
+        torn = False
+        if os.path.exists(record) and os.path.getsize(record) > 0:
+            with open(record, "rb") as f:
+                f.seek(-1, os.SEEK_END)
+                torn = f.read(1) != b"\n"
+        sink = open(record, "a")
+        if torn:  # start our lines on a fresh one
+            sink.write("\n")
+    meta = {"task": task_name, "mode": mode, "camera_scale": camera_scale, "cliport_version": __version__}
+    meta["commit"] = _commit() if sink is not None else None
     init = (task_name, mode, camera_scale)
-    bar = tqdm(total=len(seeds), desc=task_name, disable=not progress, leave=False)
-    results = []
-    if workers == 1:
-        generate.init_worker(*init)
-        for seed in seeds:
-            results.append(generate.check_seed(seed))
-            bar.update(1)
-    else:
-        ctx = mp.get_context("spawn")
-        with cf.ProcessPoolExecutor(workers, mp_context=ctx, initializer=generate.init_worker, initargs=init) as pool:
-            for result in pool.map(generate.check_seed, seeds):
-                results.append(result)
-                bar.update(1)
-    bar.close()
+    bar = tqdm(total=len(todo), desc=task_name, disable=not progress, leave=False)
+
+    def finished(result: dict) -> None:
+        done[result["seed"]] = result
+        if sink is not None:
+            sink.write(json.dumps({**meta, **result, "total_reward": round(result["total_reward"], 4)}) + "\n")
+            sink.flush()
+            os.fsync(sink.fileno())
+        bar.update(1)
+
+    try:
+        if workers == 1:
+            generate.init_worker(*init)
+            for seed in todo:
+                finished(generate.check_seed(seed))
+        elif todo:
+            ctx = mp.get_context("spawn")
+            with cf.ProcessPoolExecutor(
+                workers, mp_context=ctx, initializer=generate.init_worker, initargs=init
+            ) as pool:
+                for result in pool.map(generate.check_seed, todo):
+                    finished(result)
+    finally:
+        bar.close()
+        if sink is not None:
+            sink.close()
+    results = [done[s] for s in seeds]
     failures = [{"seed": r["seed"], "total_reward": round(r["total_reward"], 3)} for r in results if not r["success"]]
     return {
         "task": task_name,
@@ -58,6 +138,7 @@ def check(
         "seconds_per_episode": round(statistics.mean(r["seconds"] for r in results), 2),
         "camera_scale": camera_scale,
         "failed_seeds": failures,
+        "newly_run": len(todo),
     }
 
 
@@ -69,6 +150,9 @@ def main() -> None:
     parser.add_argument("--mode", default="train", choices=["train", "val", "test"])
     parser.add_argument("--camera-scale", type=float, default=1.0)
     parser.add_argument("--workers", type=int, default=1, help="worker processes (one simulator each)")
+    parser.add_argument(
+        "--record-dir", metavar="DIR", help="append per-seed results to DIR/TASK.jsonl and skip seeds already there"
+    )
     args = parser.parse_args()
     if args.episodes < 1 or args.workers < 1:
         sys.exit("error: --episodes and --workers must be >= 1")
@@ -78,7 +162,10 @@ def main() -> None:
     except (KeyError, ValueError) as e:
         sys.exit(f"error: {e.args[0]}")
     for name in names:
-        result = check(name, args.episodes, args.mode, args.camera_scale, workers=args.workers, seeds=args.seeds)
+        record = None if args.record_dir is None else os.path.join(args.record_dir, f"{name}.jsonl")
+        result = check(
+            name, args.episodes, args.mode, args.camera_scale, workers=args.workers, seeds=args.seeds, record=record
+        )
         print(json.dumps(result), flush=True)
 
 

@@ -26,3 +26,52 @@ def test_chosen_seeds_and_bad_task():
     bad = _run("--task", "no-such-task")
     assert bad.returncode != 0
     assert "no-such-task" in bad.stderr and "Traceback" not in bad.stderr
+
+
+TABLE = SCRIPT.parent / "oracle_table.py"
+
+
+def test_record_dir_resumes_and_survives_a_torn_line(tmp_path):
+    records = tmp_path / "oracle"
+    first = _run("--task", "block-insertion", "--episodes", "2", "--camera-scale", "0.5", "--record-dir", str(records))
+    assert first.returncode == 0, first.stderr
+    assert json.loads(first.stdout)["newly_run"] == 2
+    path = records / "block-insertion.jsonl"
+    lines = [json.loads(line) for line in path.read_text().splitlines()]
+    assert [r["seed"] for r in lines] == [0, 2]
+    assert all(r["task"] == "block-insertion" and r["camera_scale"] == 0.5 and "commit" in r for r in lines)
+    with open(path, "a") as f:
+        f.write('{"task": "block-insertion", "mode": "tr')  # a run killed mid-write
+    again = _run("--task", "block-insertion", "--episodes", "3", "--camera-scale", "0.5", "--record-dir", str(records))
+    assert again.returncode == 0, again.stderr
+    summary = json.loads(again.stdout)
+    assert summary["newly_run"] == 1 and summary["episodes"] == 3 and summary["success_rate"] == 1.0
+    assert json.loads(path.read_text().splitlines()[-1])["seed"] == 4
+
+    shown = subprocess.run(
+        [sys.executable, str(TABLE), "--dir", str(records)], capture_output=True, text=True, timeout=60
+    )
+    assert shown.returncode == 0, shown.stderr
+    row = [line for line in shown.stdout.splitlines() if line.startswith("| block-insertion")]
+    assert len(row) == 1 and "first 3" in row[0] and "1.00 (3/3)" in row[0] and "cameras x0.5" in row[0]
+
+    readme = tmp_path / "README.md"
+    readme.write_text("# no markers here\n")
+    bad = subprocess.run(
+        [sys.executable, str(TABLE), "--dir", str(records), "--readme", str(readme)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert bad.returncode != 0 and "markers" in bad.stderr and "Traceback" not in bad.stderr
+    readme.write_text("before\n<!-- oracle-table:start -->\nold\n<!-- oracle-table:end -->\nafter\n")
+    good = subprocess.run(
+        [sys.executable, str(TABLE), "--dir", str(records), "--readme", str(readme)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert good.returncode == 0, good.stderr
+    text = readme.read_text()
+    assert text.startswith("before\n") and text.endswith("after\n")
+    assert "old" not in text and "| block-insertion" in text
