@@ -16,16 +16,8 @@ from cliport.env import shapes
 from cliport.env.transforms import Pose, multiply, yaw_to_quat
 from cliport.tasks import register
 from cliport.tasks.base import GoalStep
-from cliport.tasks.colors import COLORS, split_colors
-from cliport.tasks.kit_shapes import (
-    HEIGHT,
-    SHAPES,
-    SplitYawOracle,
-    build_shape,
-    placed_pieces,
-    prism_mesh,
-    split_shapes,
-)
+from cliport.tasks.colors import split_colors
+from cliport.tasks.kit_shapes import HEIGHT, SHAPES, ShapeTask, placed_pieces, prism_mesh, split_shapes
 
 KIT_SIZE = (0.28, 0.2, 0.005)
 KIT_COLOR = (0.85, 0.82, 0.75)
@@ -33,21 +25,11 @@ SILHOUETTE_COLOR = (0.2, 0.2, 0.2)
 SILHOUETTE_THICKNESS = 0.0015  # visual only; thinner ones flicker in the fused depth
 # Target centres in the board frame: three holes in one row, two in the other.
 HOLE_OFFSETS = [(-0.09, 0.045), (0.0, 0.045), (0.09, 0.045), (-0.045, -0.045), (0.045, -0.045)]
-OBJECT_FOOTPRINT = (0.08, 0.08, HEIGHT)
 N_OBJECTS = 5
 
 
-class KitTask(SplitYawOracle):
+class KitTask(ShapeTask):
     """Shared scene building of the assembling-kits family."""
-
-    def __init__(self, mode: str = "train"):
-        super().__init__(mode)
-        self.object_shapes: dict[int, int] = {}
-        self.object_colors: dict[int, str] = {}
-
-    def reset(self, env, rng: np.random.Generator) -> None:
-        super().reset(env, rng)
-        self.object_shapes, self.object_colors = {}, {}
 
     def build_kit(self, shape_ids: list[int]) -> list[Pose]:
         """Add the board with a silhouette of each shape (random yaw) and return the target poses."""
@@ -69,19 +51,6 @@ class KitTask(SplitYawOracle):
             multiply(kit_pose, ((dx, dy, top + HEIGHT / 2), yaw_to_quat(yaw)))
             for (dx, dy), yaw in zip(HOLE_OFFSETS, yaws, strict=False)
         ]
-
-    def add_shapes(self, shape_ids: list[int], colors: list[str]) -> list[int]:
-        """Scatter one graspable body per shape on free table spots (recorded in ``object_shapes`` /
-        ``object_colors`` by body id)."""
-        bodies = []
-        for shape, color in zip(shape_ids, colors, strict=True):
-            pose = self.random_pose(OBJECT_FOOTPRINT)
-            if pose is None:
-                raise RuntimeError("no room on the table for another kit shape")
-            body = self.env.add_object(build_shape(self.env.client, self.env.asset_dir, shape, pose, COLORS[color]))
-            self.object_shapes[body], self.object_colors[body] = shape, color
-            bodies.append(body)
-        return bodies
 
 
 @register("assembling-kits")

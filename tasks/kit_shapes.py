@@ -19,6 +19,7 @@ import numpy as np
 from cliport.env import shapes
 from cliport.env.transforms import Pose, invert, multiply, quat_to_yaw, yaw_to_quat
 from cliport.tasks.base import GoalStep, Task
+from cliport.tasks.colors import COLORS
 
 HEIGHT = 0.02  # extrusion height (m)
 TRAIN_SHAPES = list(range(14))
@@ -299,3 +300,39 @@ __all__ = [
     "shape_parts",
     "split_shapes",
 ]
+
+
+OBJECT_FOOTPRINT = (0.08, 0.08, HEIGHT)  # free table area one loose kit shape needs
+
+
+class ShapeTask(SplitYawOracle):
+    """A task with loose kit shapes on the table; remembers each body's shape and colour."""
+
+    def __init__(self, mode: str = "train"):
+        super().__init__(mode)
+        self.object_shapes: dict[int, int] = {}
+        self.object_colors: dict[int, str] = {}
+
+    def reset(self, env, rng: np.random.Generator) -> None:
+        super().reset(env, rng)
+        self.object_shapes, self.object_colors = {}, {}
+
+    def add_shapes(self, shape_ids: list[int], colors: list[str]) -> list[int]:
+        """Scatter one graspable body per shape on free table spots (recorded in ``object_shapes`` /
+        ``object_colors`` by body id)."""
+        bodies = []
+        for shape, color in zip(shape_ids, colors, strict=True):
+            pose = self.random_pose(OBJECT_FOOTPRINT)
+            if pose is None:
+                raise RuntimeError("no room on the table for another kit shape")
+            body = self.env.add_object(build_shape(self.env.client, self.env.asset_dir, shape, pose, COLORS[color]))
+            self.object_shapes[body], self.object_colors[body] = shape, color
+            bodies.append(body)
+        return bodies
+
+    def object_half_extents(self, body: int) -> np.ndarray:
+        """The kit shape's own-frame box (the base class falls back to the world AABB for mesh bodies,
+        which is too large for a rotated shape)."""
+        if body in self.object_shapes:
+            return SHAPES[self.object_shapes[body]].half_extents
+        return super().object_half_extents(body)

@@ -8,10 +8,9 @@ from cliport.env import shapes
 from cliport.tasks import register
 from cliport.tasks.base import GoalStep
 from cliport.tasks.colors import COLORS, split_colors
-from cliport.tasks.kit_shapes import HEIGHT, SHAPES, SplitYawOracle, build_shape, split_shapes
+from cliport.tasks.kit_shapes import SHAPES, ShapeTask, split_shapes
 
 N_OBJECTS = 5
-OBJECT_FOOTPRINT = (0.08, 0.08, HEIGHT)
 WALL_HEIGHT = 0.05
 WALL_THICKNESS = 0.006
 FLOOR_THICKNESS = 0.002
@@ -31,19 +30,13 @@ def container_parts(inner: tuple[float, float]) -> list[dict]:
 
 
 @register("packing-shapes")
-class PackingShapes(SplitYawOracle):
+class PackingShapes(ShapeTask):
     max_steps = 1
     template = "pack the {shape} in the brown box"
     done_sentence = "done packing shapes."
 
-    def __init__(self, mode: str = "train"):
-        super().__init__(mode)
-        self.object_shapes: dict[int, int] = {}
-        self.object_colors: dict[int, str] = {}
-
     def reset(self, env, rng: np.random.Generator) -> None:
         super().reset(env, rng)
-        self.object_shapes, self.object_colors = {}, {}
         shape_ids = [int(s) for s in rng.choice(split_shapes(self.mode), N_OBJECTS, replace=False)]
         colors = [str(c) for c in rng.permutation(split_colors(self.mode, unseen=True))[:N_OBJECTS]]
         inner = (float(rng.uniform(0.1, 0.15)), float(rng.uniform(0.1, 0.15)))
@@ -54,14 +47,7 @@ class PackingShapes(SplitYawOracle):
         zone_pose = ((zone_pose[0][0], zone_pose[0][1], 0.0), zone_pose[1])
         box = shapes.compound(env.client, env.asset_dir, container_parts(inner), zone_pose, color=COLORS["brown"])
         env.add_object(box, "fixed")
-        objects = []
-        for shape, color in zip(shape_ids, colors, strict=True):
-            pose = self.random_pose(OBJECT_FOOTPRINT)
-            if pose is None:
-                raise RuntimeError("no room on the table for another kit shape")
-            body = env.add_object(build_shape(env.client, env.asset_dir, shape, pose, COLORS[color]))
-            self.object_shapes[body], self.object_colors[body] = shape, color
-            objects.append(body)
+        objects = self.add_shapes(shape_ids, colors)
         self.add_goal(
             GoalStep(
                 objects=[objects[0]],
@@ -75,10 +61,3 @@ class PackingShapes(SplitYawOracle):
                 lang_goal=self.template.format(shape=SHAPES[shape_ids[0]].label),
             )
         )
-
-    def object_half_extents(self, body: int) -> np.ndarray:
-        """The kit shape's own-frame box (the base class falls back to the world AABB for mesh bodies,
-        which is too large for a rotated shape)."""
-        if body in self.object_shapes:
-            return SHAPES[self.object_shapes[body]].half_extents
-        return super().object_half_extents(body)
