@@ -24,6 +24,7 @@ import os
 import statistics
 import subprocess
 import sys
+from collections.abc import Iterator
 
 from tqdm import tqdm
 
@@ -46,23 +47,26 @@ def _commit() -> str | None:
     return head.stdout.strip() + ("+dirty" if dirty.stdout.strip() else "")
 
 
-def read_records(path: str, task_name: str, mode: str, camera_scale: float) -> dict[int, dict]:
-    """Recorded per-seed results of one task, mode and camera scale in a JSON-lines file, by seed.
-
-    A torn last line (a run killed mid-write) is ignored; its seed is simply run again.
-    """
-    records: dict[int, dict] = {}
-    if not os.path.exists(path):
-        return records
+def iter_records(path: str) -> Iterator[dict]:
+    """The JSON records of a JSON-lines file; a torn line (a run killed mid-write) is skipped."""
     with open(path) as f:
         for line in f:
             try:
-                r = json.loads(line)
+                yield json.loads(line)
             except json.JSONDecodeError:
                 continue
-            if r.get("task") == task_name and r.get("mode") == mode and r.get("camera_scale") == camera_scale:
-                records[int(r["seed"])] = r
-    return records
+
+
+def read_records(path: str, task_name: str, mode: str, camera_scale: float) -> dict[int, dict]:
+    """Recorded per-seed results of one task, mode and camera scale in a JSON-lines file, by seed
+    (the newest record of a seed wins; a seed on a torn line is simply run again)."""
+    if not os.path.exists(path):
+        return {}
+    return {
+        int(r["seed"]): r
+        for r in iter_records(path)
+        if r.get("task") == task_name and r.get("mode") == mode and r.get("camera_scale") == camera_scale
+    }
 
 
 def check(

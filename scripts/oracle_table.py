@@ -13,10 +13,11 @@ from __future__ import annotations
 
 import argparse
 import glob
-import json
 import os
 import statistics
 import sys
+
+from oracle_check import iter_records  # scripts/ is on sys.path when this file runs
 
 from cliport.data.seeds import episode_seeds
 
@@ -28,13 +29,8 @@ def load(folder: str) -> dict[tuple[str, str, float], dict[int, dict]]:
     """Latest record per seed, grouped by (task, mode, camera scale)."""
     groups: dict[tuple[str, str, float], dict[int, dict]] = {}
     for path in sorted(glob.glob(os.path.join(folder, "*.jsonl"))):
-        with open(path) as f:
-            for line in f:
-                try:
-                    r = json.loads(line)
-                except json.JSONDecodeError:
-                    continue
-                groups.setdefault((r["task"], r["mode"], r["camera_scale"]), {})[int(r["seed"])] = r
+        for r in iter_records(path):
+            groups.setdefault((r["task"], r["mode"], r["camera_scale"]), {})[int(r["seed"])] = r
     return groups
 
 

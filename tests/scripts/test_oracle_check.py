@@ -31,6 +31,10 @@ def test_chosen_seeds_and_bad_task():
 TABLE = SCRIPT.parent / "oracle_table.py"
 
 
+def _table(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, str(TABLE), *args], capture_output=True, text=True, timeout=120)
+
+
 def test_record_dir_resumes_and_survives_a_torn_line(tmp_path):
     records = tmp_path / "oracle"
     first = _run("--task", "block-insertion", "--episodes", "2", "--camera-scale", "0.5", "--record-dir", str(records))
@@ -48,29 +52,17 @@ def test_record_dir_resumes_and_survives_a_torn_line(tmp_path):
     assert summary["newly_run"] == 1 and summary["episodes"] == 3 and summary["success_rate"] == 1.0
     assert json.loads(path.read_text().splitlines()[-1])["seed"] == 4
 
-    shown = subprocess.run(
-        [sys.executable, str(TABLE), "--dir", str(records)], capture_output=True, text=True, timeout=60
-    )
+    shown = _table("--dir", str(records))
     assert shown.returncode == 0, shown.stderr
     row = [line for line in shown.stdout.splitlines() if line.startswith("| block-insertion")]
     assert len(row) == 1 and "first 3" in row[0] and "1.00 (3/3)" in row[0] and "cameras x0.5" in row[0]
 
     readme = tmp_path / "README.md"
     readme.write_text("# no markers here\n")
-    bad = subprocess.run(
-        [sys.executable, str(TABLE), "--dir", str(records), "--readme", str(readme)],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
+    bad = _table("--dir", str(records), "--readme", str(readme))
     assert bad.returncode != 0 and "markers" in bad.stderr and "Traceback" not in bad.stderr
     readme.write_text("before\n<!-- oracle-table:start -->\nold\n<!-- oracle-table:end -->\nafter\n")
-    good = subprocess.run(
-        [sys.executable, str(TABLE), "--dir", str(records), "--readme", str(readme)],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
+    good = _table("--dir", str(records), "--readme", str(readme))
     assert good.returncode == 0, good.stderr
     text = readme.read_text()
     assert text.startswith("before\n") and text.endswith("after\n")
