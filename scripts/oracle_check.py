@@ -103,7 +103,8 @@ def check(
         if torn:  # start our lines on a fresh one
             sink.write("\n")
     meta = {"task": task_name, "mode": mode, "camera_scale": camera_scale, "cliport_version": __version__}
-    meta["commit"] = _commit() if sink is not None else None
+    if sink is not None:
+        meta["commit"] = _commit()
     init = (task_name, mode, camera_scale)
     bar = tqdm(total=len(todo), desc=task_name, disable=not progress, leave=False)
 

@@ -287,21 +287,6 @@ class SplitYawOracle(Task):
         return {"pose0": (pick[0], yaw_to_quat(-half)), "pose1": (place[0], yaw_to_quat(half))}
 
 
-__all__ = [
-    "SplitYawOracle",
-    "HEIGHT",
-    "SHAPES",
-    "TEST_SHAPES",
-    "TRAIN_SHAPES",
-    "KitShape",
-    "build_shape",
-    "placed_pieces",
-    "prism_mesh",
-    "shape_parts",
-    "split_shapes",
-]
-
-
 OBJECT_FOOTPRINT = (0.08, 0.08, HEIGHT)  # free table area one loose kit shape needs
 
 
@@ -336,3 +321,20 @@ class ShapeTask(SplitYawOracle):
         if body in self.object_shapes:
             return SHAPES[self.object_shapes[body]].half_extents
         return super().object_half_extents(body)
+
+
+__all__ = [
+    "SplitYawOracle",
+    "ShapeTask",
+    "OBJECT_FOOTPRINT",
+    "HEIGHT",
+    "SHAPES",
+    "TEST_SHAPES",
+    "TRAIN_SHAPES",
+    "KitShape",
+    "build_shape",
+    "placed_pieces",
+    "prism_mesh",
+    "shape_parts",
+    "split_shapes",
+]
