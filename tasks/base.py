@@ -253,7 +253,12 @@ class Task:
         return None
 
     def sample_pick(self, body: int, height: np.ndarray, ids: np.ndarray) -> Pose | None:
-        """A pick pose on a uniformly random pixel of the body's visible mask (eroded by one pixel)."""
+        """A pick pose on a uniformly random pixel of the body's visible mask (eroded by one pixel).
+
+        A body's collision shape may leave gaps its visual shape covers (hanoi rings); if a short
+        vertical ray through the drawn pixel does not hit the body first, the nearest pixel whose ray
+        does is used instead, so the suction cup lands on something it can hold.
+        """
         mask = np.uint8(ids == body)
         eroded = cv2.erode(mask, np.ones((3, 3), np.uint8))
         if eroded.any():
@@ -261,8 +266,29 @@ class Task:
         cells = np.argwhere(mask > 0)
         if len(cells) == 0:
             return None
-        u, v = cells[self.rng.integers(len(cells))]
-        return hm.pix_to_xyz((int(u), int(v)), height), (0.0, 0.0, 0.0, 1.0)
+        drawn = cells[self.rng.integers(len(cells))]
+        points = [hm.pix_to_xyz((int(u), int(v)), height) for u, v in cells]
+        index = int(np.flatnonzero((cells == drawn).all(axis=1))[0])
+        if not self._ray_hits(body, [points[index]])[0]:
+            hits = self._ray_hits(body, points)
+            if hits.any():
+                order = np.argsort(np.linalg.norm(cells - drawn, axis=1), kind="stable")
+                index = int(next(k for k in order if hits[k]))
+        return points[index], (0.0, 0.0, 0.0, 1.0)
+
+    def _ray_hits(self, body: int, points: list[tuple[float, float, float]]) -> np.ndarray:
+        """Whether a vertical ray from 1 cm above each point down to 2 cm below it hits ``body`` first."""
+        starts = [(x, y, z + 0.01) for x, y, z in points]
+        ends = [(x, y, z - 0.02) for x, y, z in points]
+        hits = []
+        for k in range(0, len(points), p.MAX_RAY_INTERSECTION_BATCH_SIZE):
+            batch = p.rayTestBatch(
+                starts[k : k + p.MAX_RAY_INTERSECTION_BATCH_SIZE],
+                ends[k : k + p.MAX_RAY_INTERSECTION_BATCH_SIZE],
+                physicsClientId=self.env.client,
+            )
+            hits.extend(hit[0] == body for hit in batch)
+        return np.array(hits, dtype=bool)
 
     def place_pose(self, step: GoalStep, i: int, j: int, pick: Pose) -> Pose:
         """Target j composed with the inverse grasp-relative pose of object i (yaw only)."""
