@@ -9,6 +9,8 @@ from cliport.env import shapes
 from cliport.env.shapes import Color
 
 BLOCK = (0.04, 0.04, 0.04)
+BOWL = (0.12, 0.12, 0.0)
+BOWL_TOLERANCE = 0.05  # the reference's pos_eps for a block in a bowl
 BROWN_SHADES: tuple[Color, Color, Color] = ((196, 160, 132), (156, 117, 95), (104, 72, 54))  # light, mid, dark
 
 # L block: two 4 cm arms inside a 10 x 10 cm square centred on the body origin, 4 cm tall.

@@ -2,21 +2,25 @@
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from cliport.env import shapes
 from cliport.tasks import register
 from cliport.tasks.base import GoalStep, Task
+from cliport.tasks.blocks_assets import BLOCK, BOWL, BOWL_TOLERANCE
 from cliport.tasks.colors import COLORS
 
-BLOCK = (0.04, 0.04, 0.04)
-BOWL = (0.12, 0.12, 0.0)
+N_DISTRACTORS = 10
 
 
 @register("place-red-in-green")
 class PlaceRedInGreen(Task):
+    """1-3 green bowls, 1..bowls red blocks, ten distractor blocks and bowls in other colours.
+
+    As in the reference, a red block counts once it is within 5 cm of a free green bowl's centre,
+    whatever its yaw; one goal step holds every red block, so each is worth 1/n.
+    """
+
     max_steps = 10
     lang_template = "put the red blocks in a green bowl"
 
@@ -38,17 +42,18 @@ class PlaceRedInGreen(Task):
             if pose is None:
                 break
             blocks.append(env.add_object(shapes.box(env.client, BLOCK, pose, COLORS["red"])))
-        distractor_colors = [c for c in COLORS if c not in ("red", "green")]
-        for _ in range(6):
+        block_colors = [c for c in COLORS if c != "red"]
+        bowl_colors = [c for c in COLORS if c != "green"]
+        for k in range(N_DISTRACTORS):
             is_block = rng.random() > 0.5
-            size = BLOCK if is_block else BOWL
-            pose = self.random_pose(size, margin=0.01)
+            pose = self.random_pose(BLOCK if is_block else BOWL, margin=0.01)
             if pose is None:
                 break
-            color = COLORS[distractor_colors[int(rng.integers(len(distractor_colors)))]]
             if is_block:
+                color = COLORS[block_colors[k % len(block_colors)]]
                 env.add_object(shapes.box(env.client, BLOCK, pose, color))
             else:
+                color = COLORS[bowl_colors[k % len(bowl_colors)]]
                 pose = ((pose[0][0], pose[0][1], 0.0), pose[1])
                 env.add_object(shapes.bowl(env.client, env.asset_dir, pose, color), "fixed")
         self.add_goal(
@@ -57,8 +62,9 @@ class PlaceRedInGreen(Task):
                 matches=np.ones((len(blocks), len(bowl_poses))),
                 targets=bowl_poses,
                 share=1.0,
-                symmetries=[math.pi / 2] * len(blocks),
+                symmetries=[0.0] * len(blocks),
                 replace=False,
                 rotations=True,
+                tolerance=BOWL_TOLERANCE,
             )
         )

@@ -7,18 +7,18 @@ import numpy as np
 from cliport.env import shapes
 from cliport.tasks import register
 from cliport.tasks.base import GoalStep, Task
-from cliport.tasks.blocks_assets import BLOCK
+from cliport.tasks.blocks_assets import BLOCK, BOWL, BOWL_TOLERANCE
 from cliport.tasks.colors import COLORS, split_colors
 
-BOWL = (0.12, 0.12, 0.0)
 N_DISTRACTORS = 6
 
 
 class _PutBlockInBowl(Task):
     """1-3 bowls of the place colour, 1..bowls blocks of the pick colour, six distractor blocks/bowls.
 
-    One goal step holds every target block (each in a different bowl; block yaw ignored), so the
-    reward is 1/n per block placed; ``max_steps`` is the number of blocks + 1.
+    One goal step holds every target block (each in a different bowl, within 5 cm of its centre as in
+    the reference; block yaw ignored), so the reward is 1/n per block placed; ``max_steps`` is the
+    number of blocks + 1.
     """
 
     unseen = False
@@ -64,6 +64,7 @@ class _PutBlockInBowl(Task):
                 share=1.0,
                 symmetries=[0.0] * n_blocks,
                 rotations=True,
+                tolerance=BOWL_TOLERANCE,
                 lang_goal=f"put the {pick} blocks in a {place} bowl",
             )
         )
