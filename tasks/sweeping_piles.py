@@ -24,6 +24,7 @@ CUBE_MASS = 0.01
 N_CUBES = 50
 MIN_GAP = 0.015  # centre distance between spawned cubes (a 1 cm cube's diagonal is 1.41 cm)
 ZONE = (0.12, 0.12, 0.0)
+SQUARE = (0.15, 0.15, 0.0)  # separating-piles squares, as in the reference
 MARKER_WIDTH = 0.005
 MARKER_HEIGHT = 0.001
 BLADE_HALF_WIDTH = 0.025
@@ -161,7 +162,8 @@ class SweepingPiles(PileTask):
 
 
 class SeparatingPiles(PileTask):
-    """Push the pile into the square of the named colour; a second square of another colour distracts."""
+    """Push the pile into the 15 cm square of the named colour; a second square distracts (pile and
+    squares in three different colours)."""
 
     unseen = False
     lang_template = None
@@ -170,19 +172,18 @@ class SeparatingPiles(PileTask):
     def reset(self, env, rng: np.random.Generator) -> None:
         super().reset(env, rng)
         colors = split_colors(self.mode, self.unseen)
-        target_color, other_color = (colors[int(k)] for k in rng.choice(len(colors), 2, replace=False))
-        block_color = colors[int(rng.integers(len(colors)))]
+        target_color, other_color, block_color = (colors[int(k)] for k in rng.choice(len(colors), 3, replace=False))
         zones: list[Pose] = []
         for _ in range(1000):
             if len(zones) == 2:
                 break
-            pose = self.random_pose(ZONE)
+            pose = self.random_pose(SQUARE)
             assert pose is not None
-            if zones and np.linalg.norm(np.subtract(pose[0][:2], zones[0][0][:2])) < ZONE[0] * math.sqrt(2) + 0.02:
+            if zones and np.linalg.norm(np.subtract(pose[0][:2], zones[0][0][:2])) < SQUARE[0] * math.sqrt(2) + 0.02:
                 continue  # the two squares must not overlap
             zones.append(((pose[0][0], pose[0][1], 0.0), pose[1]))
-        square_outline(env, zones[0], ZONE[0], COLORS[target_color])
-        square_outline(env, zones[1], ZONE[0], COLORS[other_color])
+        square_outline(env, zones[0], SQUARE[0], COLORS[target_color])
+        square_outline(env, zones[1], SQUARE[0], COLORS[other_color])
         cubes = add_pile(self, (0.5, 0.0), 0.2, COLORS[block_color])
         self.add_goal(
             GoalStep(
@@ -191,7 +192,7 @@ class SeparatingPiles(PileTask):
                 targets=[zones[0]],
                 share=1.0,
                 metric="zone",
-                zones=[(zones[0], ZONE)],
+                zones=[(zones[0], SQUARE)],
                 lang_goal=f"push the pile of {block_color} blocks into the {target_color} square",
             )
         )

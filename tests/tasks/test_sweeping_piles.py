@@ -78,7 +78,8 @@ def test_separating_piles_language_and_splits(unseen):
                 words = env.lang_goal.split()
                 assert words[:4] == ["push", "the", "pile", "of"] and words[5:8] == ["blocks", "into", "the"]
                 assert words[9] == "square" and len(words) == 10
-                assert words[4] in palette and words[8] in palette
+                assert words[4] in palette and words[8] in palette and words[4] != words[8]
+                assert env.task.goals[0].zones[0][1][:2] == (0.15, 0.15)  # the reference's square
                 bodies = env.objects["rigid"] + env.objects["fixed"]
                 allowed = np.array([_rgb(COLORS[n]) for n in palette])
                 for b in bodies:
