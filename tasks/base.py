@@ -32,7 +32,8 @@ class GoalStep:
     metric "pose": an object counts when it is within ``tolerance`` (xy) of an allowed target and,
     if ``rotations`` and its symmetry > 0, its folded yaw error is < 15 degrees. metric "zone": the
     fraction of each object's sample points (2 cm grid over its box) inside any of ``zones``
-    ((pose, (sx, sy, sz)) boxes). share: this step's part of the episode's total reward (sum 1).
+    ((pose, (sx, sy, sz)) boxes; only x and y are checked, and z < ``zone_top`` in the zone's frame
+    when that is set). share: this step's part of the episode's total reward (sum 1).
     """
 
     objects: list[int]
@@ -45,6 +46,7 @@ class GoalStep:
     metric: str = "pose"
     zones: list[tuple[Pose, tuple[float, float, float]]] = field(default_factory=list)
     tolerance: float = 0.01
+    zone_top: float | None = None
     lang_goal: str | None = None
 
     def __post_init__(self) -> None:
@@ -167,7 +169,10 @@ class Task:
         inside = np.zeros(len(points), dtype=bool)
         for zone_pose, zone_size in step.zones:
             local = apply(invert(zone_pose), points)
-            inside |= np.all(np.abs(local[:, :2]) < np.asarray(zone_size[:2]) / 2, axis=1)
+            within = np.all(np.abs(local[:, :2]) < np.asarray(zone_size[:2]) / 2, axis=1)
+            if step.zone_top is not None:
+                within &= local[:, 2] < step.zone_top
+            inside |= within
         return float(inside.mean())
 
     def set_object_size(self, body: int, size: tuple[float, float, float]) -> None:

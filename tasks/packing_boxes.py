@@ -21,6 +21,9 @@ MIN_SIDE = 0.05  # smallest box side before the clearance
 CLEARANCE = 0.006  # each box is this much smaller than its cell along x and y
 BOX_HEIGHT = 0.05
 WALL_HEIGHT = 0.03
+# packing-boxes-pairs counts only box points below this height above the table: the reference's
+# "tight z-bound to discourage stuffing", 5.25 cm above the middle of its 5 cm deep container.
+PAIRS_ZONE_TOP = 0.0775
 
 
 class PackingBoxesBase(ZoneOracleMixin):
@@ -56,7 +59,9 @@ class PackingBoxesBase(ZoneOracleMixin):
             return None
         return env.add_object(shapes.box(env.client, size, pose, color))
 
-    def add_packing_goal(self, boxes, targets, zone_pose, interior, lang_goal: str | None = None) -> None:
+    def add_packing_goal(
+        self, boxes, targets, zone_pose, interior, lang_goal: str | None = None, zone_top: float | None = None
+    ) -> None:
         self.add_goal(
             GoalStep(
                 objects=boxes,
@@ -67,6 +72,7 @@ class PackingBoxesBase(ZoneOracleMixin):
                 rotations=True,
                 metric="zone",
                 zones=[(zone_pose, (interior[0], interior[1], WALL_HEIGHT))],
+                zone_top=zone_top,
                 lang_goal=lang_goal,
             )
         )
@@ -90,7 +96,10 @@ class PackingBoxes(PackingBoxesBase):
 
 
 class PackingBoxesPairs(PackingBoxesBase):
-    """Boxes of two named colours fill the container; four boxes of other colours are distractors."""
+    """Boxes of two named colours fill the container; four boxes of other colours are distractors.
+
+    A box stacked on another does not count in full (``PAIRS_ZONE_TOP``), as in the reference.
+    """
 
     unseen = False
     lang_template = None
@@ -115,7 +124,7 @@ class PackingBoxesPairs(PackingBoxesBase):
             _, size = cells[int(rng.integers(len(cells)))]
             self.scatter_box(env, size, COLORS[others[int(rng.integers(len(others)))]])
         lang = f"pack all the {pair[0]} and {pair[1]} blocks into the brown box"
-        self.add_packing_goal(boxes, targets, zone_pose, interior, lang_goal=lang)
+        self.add_packing_goal(boxes, targets, zone_pose, interior, lang_goal=lang, zone_top=PAIRS_ZONE_TOP)
 
 
 @register("packing-boxes-pairs-seen-colors")

@@ -1,4 +1,5 @@
 import numpy as np
+import pybullet as p
 import pytest
 
 from cliport import tasks
@@ -74,3 +75,18 @@ def _color_name(env, body):
     rgba = p.getVisualShapeData(body, physicsClientId=env.client)[0][7]
     rgb = np.array(rgba[:3]) * 255
     return min(COLORS, key=lambda c: np.abs(np.array(COLORS[c]) - rgb).sum())
+
+
+def test_pairs_box_stacked_on_another_does_not_count_in_full():
+    task = tasks.make("packing-boxes-pairs-seen-colors")
+    with Environment(EnvConfig.defaults(camera_scale=0.5), task=task) as env:
+        env.reset(2)
+        step = task.goals[0]
+        (low, quat), own = step.targets[0], step.targets[1]
+        a, b = step.objects[:2]
+        p.resetBasePositionAndOrientation(a, low, quat, physicsClientId=env.client)
+        p.resetBasePositionAndOrientation(b, (low[0], low[1], low[2] + 0.05), quat, physicsClientId=env.client)
+        assert task.zone_fraction(step, a) == 1.0
+        assert task.zone_fraction(step, b) < 1.0
+        p.resetBasePositionAndOrientation(b, *own, physicsClientId=env.client)
+        assert task.zone_fraction(step, b) == 1.0
