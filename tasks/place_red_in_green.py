@@ -15,7 +15,8 @@ N_DISTRACTORS = 10
 
 @register("place-red-in-green")
 class PlaceRedInGreen(Task):
-    """1-3 green bowls, 1..bowls red blocks, ten distractor blocks and bowls in other colours.
+    """1-3 green bowls, 1..bowls red blocks, up to ten distractor blocks and bowls in other colours
+    (the reference retries until ten fit; ours stops at the first that finds no free spot).
 
     As in the reference, a red block counts once it is within 5 cm of a free green bowl's centre,
     whatever its yaw; one goal step holds every red block, so each is worth 1/n.
