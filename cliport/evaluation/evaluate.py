@@ -25,12 +25,22 @@ def resolve_device(name: str) -> torch.device:
 
 
 def confidence_interval(scores: list[float]) -> tuple[float, float]:
-    """95% normal-approximation interval of the mean of ``scores``."""
+    """95% normal-approximation interval of the mean of ``scores`` (each in [0, 100]), clipped to [0, 100]."""
     mean = statistics.mean(scores)
     if len(scores) < 2:
         return mean, mean
     half = 1.96 * statistics.stdev(scores) / math.sqrt(len(scores))
-    return mean - half, mean + half
+    return max(mean - half, 0.0), min(mean + half, 100.0)
+
+
+def success_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
+    """95% Wilson score interval of a success rate, in percent; unlike the normal approximation it
+    does not collapse to a point when every episode succeeds (100/100 gives [96.3, 100])."""
+    rate = successes / n
+    denom = 1 + z * z / n
+    centre = (rate + z * z / (2 * n)) / denom
+    half = z * math.sqrt(rate * (1 - rate) / n + z * z / (4 * n * n)) / denom
+    return 100 * max(centre - half, 0.0), 100 * min(centre + half, 1.0)
 
 
 def agent_policy(agent: Any, lang: str | None = None, on_act=None):
@@ -77,13 +87,16 @@ def evaluate(
             episodes.append(row)
     scores = [100 * e["total_reward"] for e in episodes]
     low, high = confidence_interval(scores)
+    successes = sum(e["total_reward"] > 0.99 for e in episodes)
+    success_low, success_high = success_interval(successes, len(episodes))
     return {
         "task": task_name,
         "mode": mode,
         "n_episodes": len(episodes),
         "mean_score": round(statistics.mean(scores), 2),
         "ci95": [round(low, 2), round(high, 2)],
-        "success_rate": sum(e["total_reward"] > 0.99 for e in episodes) / len(episodes),
+        "success_rate": successes / len(episodes),
+        "success_ci95": [round(success_low, 2), round(success_high, 2)],
         "episodes": episodes,
     }
 

@@ -62,7 +62,7 @@ def test_train_then_eval(runs, agent, capsys):
     _run(eval_cli.main, ["--run-dir", run_dir, "--n-episodes", "2", "--camera-scale", "0.5", "--no-progress"])
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert summary["n_episodes"] == 2 and summary["agent"] == agent and summary["mode"] == "test"
-    assert 0.0 <= summary["mean_score"] <= 100.0 and len(summary["ci95"]) == 2
+    assert 0.0 <= summary["mean_score"] <= 100.0 and len(summary["ci95"]) == 2 and len(summary["success_ci95"]) == 2
     assert summary["clip_weights"] == ("random" if agent == "two_stream" else None)
     assert summary["checkpoint"] == val["best_step"]
     with open(os.path.join(run_dir, "eval", f"{TASK}-test-{val['best_step']}.json")) as f:
