@@ -271,15 +271,15 @@ class Task:
         cells = np.argwhere(mask > 0)
         if len(cells) == 0:
             return None
-        drawn = cells[self.rng.integers(len(cells))]
-        points = [hm.pix_to_xyz((int(u), int(v)), height) for u, v in cells]
-        index = int(np.flatnonzero((cells == drawn).all(axis=1))[0])
-        if not self._ray_hits(body, [points[index]])[0]:
+        drawn = int(self.rng.integers(len(cells)))
+        point = hm.pix_to_xyz((int(cells[drawn][0]), int(cells[drawn][1])), height)
+        if not self._ray_hits(body, [point])[0]:
+            points = [hm.pix_to_xyz((int(u), int(v)), height) for u, v in cells]
             hits = self._ray_hits(body, points)
             if hits.any():
-                order = np.argsort(np.linalg.norm(cells - drawn, axis=1), kind="stable")
-                index = int(next(k for k in order if hits[k]))
-        return points[index], (0.0, 0.0, 0.0, 1.0)
+                order = np.argsort(np.linalg.norm(cells - cells[drawn], axis=1), kind="stable")
+                point = points[next(k for k in order if hits[k])]
+        return point, (0.0, 0.0, 0.0, 1.0)
 
     def _ray_hits(self, body: int, points: list[tuple[float, float, float]]) -> np.ndarray:
         """Whether a vertical ray from 1 cm above each point down to 2 cm below it hits ``body`` first."""

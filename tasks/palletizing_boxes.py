@@ -18,7 +18,7 @@ import numpy as np
 import pybullet as p
 
 from cliport.env import shapes
-from cliport.env.transforms import multiply
+from cliport.env.transforms import multiply, yaw_to_quat
 from cliport.tasks import register
 from cliport.tasks.base import GoalStep
 from cliport.tasks.packing_assets import PALLET_HEIGHT, PALLET_SIZE, ZoneOracleMixin, pallet
@@ -73,7 +73,7 @@ class PalletizingBoxes(ZoneOracleMixin):
             parked = ((PARK_X, -1.8 + 0.2 * n, size[2] / 2), (0.0, 0.0, 0.0, 1.0))
             body = env.add_object(shapes.box(env.client, size, parked, color))
             self.waiting.append(body)
-            local = (centre, (0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2)))
+            local = (centre, yaw_to_quat(yaw))
             self.add_goal(
                 GoalStep(
                     objects=[body],
@@ -106,7 +106,7 @@ class PalletizingBoxes(ZoneOracleMixin):
         body = self.waiting.pop(0)
         size = self.object_half_extents(body) * 2
         yaw = float(self.rng.uniform(0, 2 * math.pi))
-        pose = ((*SPAWN_XY, SPAWN_DROP + size[2] / 2), (0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2)))
+        pose = ((*SPAWN_XY, SPAWN_DROP + size[2] / 2), yaw_to_quat(yaw))
         p.resetBasePositionAndOrientation(body, *pose, physicsClientId=self.env.client)
         for _ in range(DROP_STEPS):  # it starts at rest, so settle() alone would return at once
             p.stepSimulation(physicsClientId=self.env.client)
