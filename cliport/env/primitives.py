@@ -11,13 +11,15 @@ from cliport.env.transforms import Pose, multiply, yaw_to_quat
 
 @dataclass(frozen=True)
 class PickPlaceSettings:
-    height: float = 0.32  # approach / retreat height above the pick and place poses (m)
-    speed: float = 0.01  # joint step per simulation step (rad)
+    height: float = 0.32  # lift and carry height above the pick and place poses (m)
+    speed: float = 0.01  # joint step per simulation step while lifting, carrying and placing (rad)
+    approach_height: float = 0.32  # start above the pick and end above the place this high (m)
+    approach_speed: float = 0.01  # joint step while approaching, descending to the pick and retreating (rad)
     descend_step: float = 0.001  # descent per move while looking for contact (m)
     max_descent: float = 0.4  # give up looking for contact after this much descent (m)
 
 
-def _descend_until_contact(robot, ee, start: Pose, settings: PickPlaceSettings) -> bool:
+def _descend_until_contact(robot, ee, start: Pose, speed: float, settings: PickPlaceSettings) -> bool:
     """Lower the tool from ``start`` in small moves until the end effector touches something."""
     target = start
     delta = ((0.0, 0.0, -settings.descend_step), (0.0, 0.0, 0.0, 1.0))
@@ -25,7 +27,7 @@ def _descend_until_contact(robot, ee, start: Pose, settings: PickPlaceSettings) 
         if ee.detect_contact():
             return True
         target = multiply(target, delta)
-        if not robot.movep(target, settings.speed, budget=200):
+        if not robot.movep(target, speed, budget=200):
             return ee.detect_contact()
     return ee.detect_contact()
 
@@ -33,24 +35,29 @@ def _descend_until_contact(robot, ee, start: Pose, settings: PickPlaceSettings) 
 def pick_place(robot, ee, pose0: Pose, pose1: Pose, settings: PickPlaceSettings = PickPlaceSettings()) -> dict:
     """Pick at ``pose0`` with suction and place at ``pose1``.
 
+    The tool comes down from ``approach_height`` above the pick, lifts the object to ``height``,
+    carries it to ``height`` above the place, lowers it until it touches, releases it and rises to
+    ``approach_height`` (the rope tasks carry 2 cm high, slowly, but approach and leave from above).
     Returns a dict: ``grasped`` (whether suction held an object after lifting) and ``reached``
     (whether every move finished within its step budget).
     """
-    above = ((0.0, 0.0, settings.height), (0.0, 0.0, 0.0, 1.0))
-    prepick = multiply(pose0, above)
-    reached = robot.movep(prepick, settings.speed)
-    reached &= _descend_until_contact(robot, ee, prepick, settings)
+    approach = ((0.0, 0.0, settings.approach_height), (0.0, 0.0, 0.0, 1.0))
+    carry = ((0.0, 0.0, settings.height), (0.0, 0.0, 0.0, 1.0))
+    prepick = multiply(pose0, approach)
+    reached = robot.movep(prepick, settings.approach_speed)
+    reached &= _descend_until_contact(robot, ee, prepick, settings.approach_speed, settings)
     ee.activate()
-    reached &= robot.movep(prepick, settings.speed)
+    reached &= robot.movep(multiply(pose0, carry), settings.speed)
     grasped = ee.check_grasp()
     if grasped:
-        preplace = multiply(pose1, above)
+        preplace = multiply(pose1, carry)
         reached &= robot.movep(preplace, settings.speed)
-        reached &= _descend_until_contact(robot, ee, preplace, settings)
+        reached &= _descend_until_contact(robot, ee, preplace, settings.speed, settings)
         ee.release()
-        reached &= robot.movep(preplace, settings.speed)
+        reached &= robot.movep(multiply(pose1, approach), settings.approach_speed)
     else:
         ee.release()
+        reached &= robot.movep(prepick, settings.approach_speed)
     return {"grasped": grasped, "reached": bool(reached)}
 
 

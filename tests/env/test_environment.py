@@ -7,7 +7,7 @@ import pytest
 from cliport.env import heightmap as hm
 from cliport.env import shapes
 from cliport.env.environment import ActionError, EnvConfig, Environment
-from cliport.env.primitives import PickPlaceSettings
+from cliport.env.primitives import PickPlaceSettings, pick_place
 from cliport.env.transforms import quat_to_yaw, yaw_to_quat
 
 
@@ -116,6 +116,34 @@ def test_pick_and_place_moves_and_rotates_block(env):
     assert np.linalg.norm(np.subtract(pos[:2], goal)) < 0.01
     assert abs(math.degrees(quat_to_yaw(quat) - yaw)) < 15
     assert reward == 0.0 and not done and info["lang_goal"] is None
+
+
+def test_low_carry_approaches_and_leaves_from_above(env):
+    """Rope settings carry 2 cm high, but the tool still comes down from 0.32 m and leaves to 0.32 m."""
+    env.reset(0)
+    start, goal = (0.45, 0.1), (0.55, -0.1)
+    block = _place_cube(env, start)
+    moves = []
+    movep = env.robot.movep
+
+    def logged(pose, speed=0.01, budget=2400):
+        reached = movep(pose, speed, budget)
+        moves.append((pose[0][2], speed, env.robot.tip_pose()[0][2]))
+        return reached
+
+    env.robot.movep = logged
+    try:
+        settings = PickPlaceSettings(height=0.02, speed=0.003)
+        out = pick_place(env.robot, env.ee, ((*start, 0.04), (0, 0, 0, 1)), ((*goal, 0.04), (0, 0, 0, 1)), settings)
+    finally:
+        del env.robot.movep
+    assert out["grasped"] and out["reached"]
+    assert moves[0][0] == pytest.approx(0.04 + 0.32) and moves[0][1] == 0.01  # approach from above, fast
+    assert moves[-1][0] == pytest.approx(0.04 + 0.32) and moves[-1][2] > 0.3  # leave upwards
+    carried = [m for m in moves if m[1] == 0.003]
+    assert carried and max(m[0] for m in carried) == pytest.approx(0.04 + 0.02)  # lifted only 2 cm
+    pos, _ = p.getBasePositionAndOrientation(block, physicsClientId=env.client)
+    assert np.linalg.norm(np.subtract(pos[:2], goal)) < 0.01
 
 
 @pytest.mark.parametrize("xy", [(0.25, -0.5), (0.25, 0.5), (0.75, -0.5), (0.75, 0.5), (0.5, 0.0)])
