@@ -1,0 +1,38 @@
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "bench_model.py"
+TINY = ["--agent", "transporter_only", "--width", "0.125", "--steps", "1"]
+
+
+def _run(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, str(SCRIPT), *args], capture_output=True, text=True, timeout=900)
+
+
+def test_reports_rates_memory_and_flops_as_json():
+    out = _run(*TINY, "--batch-sizes", "1", "2", "--flops")
+    assert out.returncode == 0, out.stderr
+    report = json.loads(out.stdout)
+    assert report["device"] == "cpu" and report["width"] == 0.125 and report["clip_weights"] == "random"
+    result = report["transporter_only"]
+    assert result["act_latency_s"] > 0 and report["cpu_peak_rss_gib"] > 0
+    assert result["train_samples_per_s_batch1"] > 0 and result["train_samples_per_s_batch2"] > 0
+    # A training sample is act()'s forward passes plus their backward (about twice the forward).
+    assert 2.0 < result["train_gflop_per_sample"] / result["act_gflop"] < 4.0
+
+
+def test_bad_width_is_one_line_error():
+    out = _run("--width", "0")
+    assert out.returncode == 2
+    assert "--width" in out.stderr and "Traceback" not in out.stderr
+
+
+@pytest.mark.slow
+def test_bf16_autocast_runs():
+    out = _run(*TINY, "--batch-sizes", "1", "--amp", "bf16")
+    assert out.returncode == 0, out.stderr
+    assert json.loads(out.stdout)["amp"] == "bf16"
