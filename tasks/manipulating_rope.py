@@ -46,9 +46,9 @@ class RopeTask(Task):
     (bead k -> target k); ``step_reward`` also accepts the reversed one."""
 
     max_steps = 20
-    # Lift 2 cm and move slowly: 0.003 rad per step, against 0.01 for rigid objects (Ravens uses
-    # 0.001, three times the simulation cost; not compared here).
-    primitive_settings = PickPlaceSettings(height=0.02, speed=0.003)
+    # Lift 2 cm and carry slowly, 0.001 rad per step as in Ravens (0.01 for rigid objects). At 0.003 the
+    # dragged chain whips and folds; the oracle then succeeded on 74 of 100 seeds instead of all.
+    primitive_settings = PickPlaceSettings(height=0.02, speed=0.001)
 
     def build(self, env, rng: np.random.Generator, side: tuple[str, str], lang_goal: str | None = None) -> None:
         """Add the square, the rope and one goal step for the named side."""
