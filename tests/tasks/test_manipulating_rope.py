@@ -79,11 +79,8 @@ def test_same_seed_same_scene_and_first_action():
     assert runs[0] == runs[1]
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize(
-    ("name", "seed"),  # seeds measured to succeed: the rope oracle is not perfect (about 0.7-0.87)
-    [("manipulating-rope", 0), ("manipulating-rope", 2), ("align-rope", 6), ("align-rope", 8)],
-)
+@pytest.mark.parametrize("name", ["manipulating-rope", "align-rope"])
+@pytest.mark.parametrize("seed", [0, 2])
 def test_oracle_completes(name, seed):
     with _env(name) as env:
         episode = run_episode(env, seed, oracle_policy(env))

@@ -89,7 +89,7 @@ def test_separating_piles_language_and_splits(unseen):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["sweeping-piles", "separating-piles-seen-colors"])
-@pytest.mark.parametrize("seed", [0, 4])  # train seed 2 of sweeping-piles is a measured oracle failure
+@pytest.mark.parametrize("seed", [0, 2])
 def test_oracle_completes(name, seed):
     with _env(name) as env:
         episode = run_episode(env, seed, oracle_policy(env))
