@@ -108,9 +108,9 @@ class RopeTask(Task):
         The direction (which end goes to which corner) is chosen once per episode, the one with the
         smaller total error. Ends that are off target come first, the one nearer its aim first:
         with both ends down the rope lies roughly along the side. Then the bead farthest off target
-        is placed (plain farthest-first from the start drags the two ends back and forth). When the
-        last two picks were the two ends and an end is off again, the rope is taut between them: the
-        off-target inner beads go first.
+        is placed (plain farthest-first from the start drags the two ends back and forth). An end
+        picked right after both ends were picked in turn goes only halfway to its aim: the rope then
+        lies straight along the side, and pulling one end all the way drags the other end off.
         """
         if not self.goals:
             return None
@@ -125,18 +125,17 @@ class RopeTask(Task):
         todo = errors > AIM_MARGIN * step.tolerance
         ends = sorted((0, N_BEADS - 1), key=lambda i: errors[i])
         order = [i for i in ends if todo[i]] + [int(i) for i in np.argsort(-errors) if todo[i] and i not in ends]
-        last = self._oracle_picks[-2:]
-        if len(last) == 2 and set(last) == set(ends) and order and order[0] in ends:
-            inner = [i for i in order if i not in ends]
-            order = inner + [i for i in order if i in ends]
         height, ids = self.env.oracle_heightmap()
         for i in order:
             pick = self.sample_pick(step.objects[i], height, ids)
             if pick is None:
                 continue
             offset = np.subtract(pick[0][:2], beads[i])
-            x, y = self.aim(step, target_of[i]) + offset
+            goal = self.aim(step, target_of[i])
+            if i in ends and len(self._oracle_picks) >= 2 and set(self._oracle_picks[-2:]) == set(ends):
+                goal = beads[i] + 0.5 * (goal - beads[i])  # the straight rope drags its other end along
             self._oracle_picks.append(i)
+            x, y = goal + offset
             return {"pose0": pick, "pose1": ((float(x), float(y), pick[0][2]), (0.0, 0.0, 0.0, 1.0))}
         return None
 
