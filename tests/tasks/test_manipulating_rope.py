@@ -85,3 +85,14 @@ def test_oracle_completes(name, seed):
     with _env(name) as env:
         episode = run_episode(env, seed, oracle_policy(env))
     assert episode.success and episode.done
+
+
+def test_oracle_moves_an_end_halfway_once_the_rope_lies_taut():
+    # Seed 32: the straight rope drags one end off whenever the other is pulled onto its aim; the
+    # oracle used to alternate between the ends until max steps (0.95).
+    with _env("manipulating-rope") as env:
+        episode = run_episode(env, 32, oracle_policy(env))
+        picks = env.task._oracle_picks
+    assert episode.success and episode.done
+    ends = {0, 19}
+    assert any(set(picks[k : k + 2]) == ends and picks[k + 2] in ends for k in range(len(picks) - 2))
