@@ -132,7 +132,7 @@ class RopeTask(Task):
                 continue
             offset = np.subtract(pick[0][:2], beads[i])
             goal = self.aim(step, target_of[i])
-            if i in ends and len(self._oracle_picks) >= 2 and set(self._oracle_picks[-2:]) == set(ends):
+            if i in ends and set(self._oracle_picks[-2:]) == set(ends):
                 goal = beads[i] + 0.5 * (goal - beads[i])  # the straight rope drags its other end along
             self._oracle_picks.append(i)
             x, y = goal + offset
