@@ -7,7 +7,7 @@ import math
 import numpy as np
 
 from cliport.env import shapes
-from cliport.env.transforms import multiply, yaw_to_quat
+from cliport.env.transforms import at_height, multiply, yaw_to_quat
 from cliport.tasks import register
 from cliport.tasks.base import GoalStep, Task
 from cliport.tasks.blocks_assets import corner_marker_parts
@@ -28,7 +28,7 @@ class AlignBoxCorner(Task):
         sx, sy, sz = (float(v) for v in rng.uniform((0.05, 0.05, 0.01), (0.15, 0.15, 0.06)))
         marker_pose = self.random_pose((sx, sy, 0.0), margin=0.01)
         assert marker_pose is not None, "an empty table always has room for the marker"
-        marker_pose = ((marker_pose[0][0], marker_pose[0][1], 0.0), marker_pose[1])
+        marker_pose = at_height(marker_pose)
         parts = corner_marker_parts((sx, sy, sz))
         env.add_object(shapes.compound(env.client, env.asset_dir, parts, marker_pose, COLORS["green"]), "fixed")
         box_pose = self.random_pose((sx, sy, sz), margin=0.01)

@@ -7,6 +7,7 @@ import math
 import numpy as np
 
 from cliport.env import shapes
+from cliport.env.transforms import at_height
 from cliport.tasks import register
 from cliport.tasks.base import GoalStep, Task
 from cliport.tasks.blocks_assets import ELL_HEIGHT, ELL_SIZE, FIXTURE_SIZE, ell_polygon, fixture_parts
@@ -25,14 +26,14 @@ class BlockInsertion(Task):
         super().reset(env, rng)
         fixture_pose = self.random_pose(FIXTURE_SIZE, margin=0.01)
         assert fixture_pose is not None, "an empty table always has room for the fixture"
-        fixture_pose = ((fixture_pose[0][0], fixture_pose[0][1], 0.0), fixture_pose[1])
+        fixture_pose = at_height(fixture_pose)
         env.add_object(
             shapes.compound(env.client, env.asset_dir, fixture_parts(), fixture_pose, color=COLORS["brown"]),
             "fixed",
         )
         block_pose = self.random_pose((ELL_SIZE, ELL_SIZE, ELL_HEIGHT), margin=0.01)
         assert block_pose is not None, "the table always has room for the block beside the fixture"
-        block_pose = ((block_pose[0][0], block_pose[0][1], 0.0), block_pose[1])
+        block_pose = at_height(block_pose)
         block = env.add_object(
             shapes.extruded_polygon(env.client, env.asset_dir, ell_polygon(), ELL_HEIGHT, block_pose, COLORS["red"])
         )

@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from cliport.env.primitives import PickPlaceSettings
-from cliport.env.transforms import Pose, apply
+from cliport.env.transforms import Pose, apply, at_height
 from cliport.tasks import register
 from cliport.tasks.base import GoalStep, Task
 from cliport.tasks.colors import COLORS
@@ -54,7 +54,7 @@ class RopeTask(Task):
         """Add the square, the rope and one goal step for the named side."""
         square = self.random_pose((SIDE_LENGTH, SIDE_LENGTH, 0.0))
         assert square is not None
-        square = ((square[0][0], square[0][1], 0.0), square[1])
+        square = at_height(square)
         square_outline(env, square, SIDE_LENGTH, COLORS["green"], sides=("+x", "-x", "-y"))
         beads = make_rope(env, rope_path(rng, env.bounds), COLORS["red"], COLORS["blue"])
         self.add_goal(

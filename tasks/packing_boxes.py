@@ -11,7 +11,7 @@ import math
 import numpy as np
 
 from cliport.env import shapes
-from cliport.env.transforms import multiply
+from cliport.env.transforms import at_height, multiply
 from cliport.tasks import register
 from cliport.tasks.base import GoalStep
 from cliport.tasks.colors import COLORS, split_colors
@@ -44,7 +44,7 @@ class PackingBoxesBase(ZoneOracleMixin):
         pose = self.random_pose((interior[0] + 0.01, interior[1] + 0.01, 0.0), margin=0.01)
         if pose is None:
             raise RuntimeError("no room on the table for the container")
-        pose = ((pose[0][0], pose[0][1], 0.0), pose[1])
+        pose = at_height(pose)
         container(env, pose, interior, WALL_HEIGHT)
         targets = []
         for centre, size in cells:

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cliport.env.transforms import multiply
+from cliport.env.transforms import at_height, multiply
 from cliport.tasks import register
 from cliport.tasks.base import GoalStep
 from cliport.tasks.packing_assets import (
@@ -52,7 +52,7 @@ class PackingObjects(ZoneOracleMixin):
         pose = self.random_pose((interior[0] + 0.01, interior[1] + 0.01, 0.0), margin=0.01)
         if pose is None:
             raise RuntimeError("no room on the table for the container")
-        self.zone_pose = ((pose[0][0], pose[0][1], 0.0), pose[1])
+        self.zone_pose = at_height(pose)
         container(env, self.zone_pose, interior, WALL_HEIGHT)
         self.zones = [(self.zone_pose, (interior[0], interior[1], WALL_HEIGHT))]
         self.cells = [multiply(self.zone_pose, ((float(c[0]), float(c[1]), 0.0), (0, 0, 0, 1))) for c, _ in cells]
@@ -68,7 +68,7 @@ class PackingObjects(ZoneOracleMixin):
         if pose is None:
             return None
         _, half = centred_parts(spec)
-        body, _ = build_object(env, spec, ((pose[0][0], pose[0][1], half[2] + 0.001), pose[1]))
+        body, _ = build_object(env, spec, at_height(pose, half[2] + 0.001))
         self.half_extents[body] = np.asarray(half)
         self.names[body] = spec.name
         return body

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from cliport.env import shapes
+from cliport.env.transforms import at_height
 from cliport.tasks import register
 from cliport.tasks.base import GoalStep
 from cliport.tasks.colors import COLORS, split_colors
@@ -44,7 +45,7 @@ class PackingShapes(ShapeTask):
         zone_pose = self.random_pose(outer)
         if zone_pose is None:
             raise RuntimeError("no room on the table for the box")
-        zone_pose = ((zone_pose[0][0], zone_pose[0][1], 0.0), zone_pose[1])
+        zone_pose = at_height(zone_pose)
         box = shapes.compound(env.client, env.asset_dir, container_parts(inner), zone_pose, color=COLORS["brown"])
         env.add_object(box, "fixed")
         objects = self.add_shapes(shape_ids, colors)

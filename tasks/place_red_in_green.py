@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from cliport.env import shapes
+from cliport.env.transforms import at_height
 from cliport.tasks import register
 from cliport.tasks.base import GoalStep, Task
 from cliport.tasks.blocks_assets import BLOCK, BOWL, BOWL_TOLERANCE
@@ -34,7 +35,7 @@ class PlaceRedInGreen(Task):
             pose = self.random_pose(BOWL, margin=0.01)
             if pose is None:
                 break
-            pose = ((pose[0][0], pose[0][1], 0.0), pose[1])
+            pose = at_height(pose)
             env.add_object(shapes.bowl(env.client, env.asset_dir, pose, COLORS["green"]), "fixed")
             bowl_poses.append(pose)
         blocks = []
@@ -55,7 +56,7 @@ class PlaceRedInGreen(Task):
                 env.add_object(shapes.box(env.client, BLOCK, pose, color))
             else:
                 color = COLORS[bowl_colors[k % len(bowl_colors)]]
-                pose = ((pose[0][0], pose[0][1], 0.0), pose[1])
+                pose = at_height(pose)
                 env.add_object(shapes.bowl(env.client, env.asset_dir, pose, color), "fixed")
         self.add_goal(
             GoalStep(

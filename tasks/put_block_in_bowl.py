@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from cliport.env import shapes
+from cliport.env.transforms import at_height
 from cliport.tasks import register
 from cliport.tasks.base import GoalStep, Task
 from cliport.tasks.blocks_assets import BLOCK, BOWL, BOWL_TOLERANCE
@@ -35,7 +36,7 @@ class _PutBlockInBowl(Task):
         for _ in range(n_bowls):
             pose = self.random_pose(BOWL, margin=0.01)
             assert pose is not None, "three bowls always fit on an empty table"
-            pose = ((pose[0][0], pose[0][1], 0.0), pose[1])
+            pose = at_height(pose)
             env.add_object(shapes.bowl(env.client, env.asset_dir, pose, COLORS[place]), "fixed")
             bowl_poses.append(pose)
         blocks = []
@@ -53,7 +54,7 @@ class _PutBlockInBowl(Task):
             if is_block:
                 env.add_object(shapes.box(env.client, BLOCK, pose, color))
             else:
-                pose = ((pose[0][0], pose[0][1], 0.0), pose[1])
+                pose = at_height(pose)
                 env.add_object(shapes.bowl(env.client, env.asset_dir, pose, color), "fixed")
         self.max_steps = n_blocks + 1
         self.add_goal(

@@ -7,7 +7,7 @@ import math
 import numpy as np
 
 from cliport.env import shapes
-from cliport.env.transforms import Pose, multiply
+from cliport.env.transforms import Pose, at_height, multiply
 from cliport.tasks import register
 from cliport.tasks.base import GoalStep, Task
 from cliport.tasks.blocks_assets import (
@@ -33,7 +33,7 @@ class _PyramidScene(Task):
         block ids and the six target poses (bottom row lightest to darkest tile, middle row, top)."""
         base_pose = self.random_pose(PYRAMID_BASE_SIZE, margin=0.02)
         assert base_pose is not None, "an empty table always has room for the base"
-        base_pose = ((base_pose[0][0], base_pose[0][1], 0.0), base_pose[1])
+        base_pose = at_height(base_pose)
         parts = pyramid_base_parts(BROWN_SHADES)
         env.add_object(shapes.compound(env.client, env.asset_dir, parts, base_pose), "fixed")
         targets = [multiply(base_pose, (xyz, (0.0, 0.0, 0.0, 1.0))) for xyz in pyramid_targets()]

@@ -14,7 +14,7 @@ import pybullet as p
 
 from cliport.env import shapes
 from cliport.env.primitives import PushSettings
-from cliport.env.transforms import Pose, apply, invert, yaw_to_quat
+from cliport.env.transforms import Pose, apply, at_height, invert, yaw_to_quat
 from cliport.tasks import register
 from cliport.tasks.base import GoalStep, Task
 from cliport.tasks.colors import COLORS, split_colors
@@ -56,7 +56,7 @@ def square_outline(
         }
         for s in sides
     ]
-    body = shapes.compound(env.client, env.asset_dir, parts, ((pose[0][0], pose[0][1], 0.0), pose[1]), color, mass=0.0)
+    body = shapes.compound(env.client, env.asset_dir, parts, at_height(pose), color, mass=0.0)
     return env.add_object(body, "fixed")
 
 
@@ -146,7 +146,7 @@ class SweepingPiles(PileTask):
         super().reset(env, rng)
         zone_pose = self.random_pose(ZONE)
         assert zone_pose is not None
-        zone_pose = ((zone_pose[0][0], zone_pose[0][1], 0.0), zone_pose[1])
+        zone_pose = at_height(zone_pose)
         square_outline(env, zone_pose, ZONE[0], COLORS["green"])
         cubes = add_pile(self, (0.5, 0.0), 0.2, COLORS["red"])
         self.add_goal(
@@ -181,7 +181,7 @@ class SeparatingPiles(PileTask):
             assert pose is not None
             if zones and np.linalg.norm(np.subtract(pose[0][:2], zones[0][0][:2])) < SQUARE[0] * math.sqrt(2) + 0.02:
                 continue  # the two squares must not overlap
-            zones.append(((pose[0][0], pose[0][1], 0.0), pose[1]))
+            zones.append(at_height(pose))
         square_outline(env, zones[0], SQUARE[0], COLORS[target_color])
         square_outline(env, zones[1], SQUARE[0], COLORS[other_color])
         cubes = add_pile(self, (0.5, 0.0), 0.2, COLORS[block_color])

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from cliport.env import shapes
-from cliport.env.transforms import multiply
+from cliport.env.transforms import at_height, multiply
 from cliport.tasks import register
 from cliport.tasks.base import GoalStep, Task
 from cliport.tasks.blocks_assets import (
@@ -53,7 +53,7 @@ class _TowersScene(Task):
         super().reset(env, rng)
         base_pose = self.random_pose(STAND_SIZE, margin=0.02)
         assert base_pose is not None, "an empty table always has room for the stand"
-        base_pose = ((base_pose[0][0], base_pose[0][1], 0.0), base_pose[1])
+        base_pose = at_height(base_pose)
         env.add_object(shapes.compound(env.client, env.asset_dir, stand_parts(BROWN_SHADES), base_pose), "fixed")
         rods = [multiply(base_pose, ((0.0, y, STAND_SIZE[2]), (0.0, 0.0, 0.0, 1.0))) for y in ROD_Y]
         colors = self.ring_colors(rng)

@@ -67,6 +67,11 @@ def quat_to_yaw(q: np.ndarray | tuple[float, ...]) -> float:
     return math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
 
 
+def at_height(pose: Pose, z: float = 0.0) -> Pose:
+    """``pose`` moved vertically to height ``z`` (by default onto the table), orientation kept."""
+    return (float(pose[0][0]), float(pose[0][1]), z), pose[1]
+
+
 def multiply(a: Pose, b: Pose) -> Pose:
     """Compose poses: the pose of frame b (given in frame a) in a's parent frame."""
     ra = quat_to_matrix(a[1])
