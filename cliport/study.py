@@ -11,91 +11,123 @@ papers' Transporter numbers comes from training length and checkpoint choice.
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 from typing import Any
 
+from cliport.errors import ConfigError
 from cliport.evaluation.published import published_scores
+from cliport.train.config import TrainConfig
+from cliport.utils.files import read_json, write_json
+from cliport.utils.run_dir import RunDir
 
 
 @dataclasses.dataclass
 class StudyConfig:
-    task: str
+    """A reproduction study (``cliport-reproduce``).
+
+    Args:
+        task: task to study.
+        agents: registered agent names to train.
+        n_demos: demo counts, one run per (agent, count).
+        n_steps: training steps of every run.
+        out: study folder (runs, evaluations, table, plot).
+        data_dir: folder of the demonstrations.
+        val_episodes: val episodes per checkpoint (checkpoint selection).
+        test_episodes: test episodes per checkpoint.
+        batch_size: training batch size (None: configs/train.toml's).
+        device: auto, cpu, cuda, ... (None: configs/train.toml's).
+        seed: training seed.
+        camera_scale: camera resolution of the demos and of every evaluation episode.
+        demo_workers: parallel simulators for demo generation.
+        agent_config: agent settings (e.g. {"width": 0.25, "clip_weights": "random"}); each run takes the keys
+            its agent has, and a key no studied agent has is an error.
+        checkpoint_steps: checkpoint steps (None: configs/train.toml's).
+    """
+
     agents: list[str]
     n_demos: list[int]
     n_steps: int
     out: str
     data_dir: str
+    task: str = ""
     val_episodes: int = 100
     test_episodes: int = 100
     batch_size: int | None = None
     device: str | None = None
     seed: int = 0
-    clip_weights: str | None = None
     camera_scale: float = 1.0
     demo_workers: int = 1
-    agent_overrides: dict[str, Any] = dataclasses.field(default_factory=dict)
+    agent_config: dict[str, Any] = dataclasses.field(default_factory=dict)
     checkpoint_steps: list[int] | None = None
 
+    def train_config(self, agent: str, n_demos: int) -> TrainConfig:
+        """The train config of the (agent, n_demos) run."""
+        from cliport.agents import agent_class
 
-def _load(path: str) -> Any:
-    with open(path) as f:
-        return json.load(f)
+        fields = {f.name for f in dataclasses.fields(agent_class(agent).config_class)}
+        studied = {f.name for a in self.agents for f in dataclasses.fields(agent_class(a).config_class)}
+        unknown = sorted(set(self.agent_config) - studied)
+        if unknown:
+            raise ConfigError(f"no studied agent has the setting(s) {', '.join(unknown)}")
+        given = {
+            "agent": agent,
+            "task": self.task,
+            "n_demos": n_demos,
+            "n_steps": self.n_steps,
+            "data_dir": self.data_dir,
+            "run_dir": os.path.join(self.out, "runs", f"{agent}-n{n_demos}"),
+            "seed": self.seed,
+            "val_episodes": self.val_episodes,
+            "batch_size": self.batch_size,
+            "device": self.device,
+            "checkpoint_steps": self.checkpoint_steps,
+            "agent_config": {k: v for k, v in self.agent_config.items() if k in fields},
+            "env": {"camera_scale": self.camera_scale},
+        }
+        return TrainConfig.build({k: v for k, v in given.items() if v is not None})
 
 
 def run_study(config: StudyConfig, progress: bool = True) -> dict[str, Any]:
     """Run (or resume) every part of the study and write results.json, table.md and the plot."""
     from cliport.agents import load_agent
     from cliport.data.generate import DemoConfig, generate
-    from cliport.evaluation.evaluate import evaluate, resolve_device, write_json
-    from cliport.train import trainer
+    from cliport.evaluation.evaluate import evaluate
+    from cliport.evaluation.validation import SimulatorValidator, validate_run
+    from cliport.train.trainer import train
+    from cliport.utils.device import resolve_device
 
+    train_configs = {(a, n): config.train_config(a, n) for a in config.agents for n in config.n_demos}
     os.makedirs(config.out, exist_ok=True)
     write_json(os.path.join(config.out, "study_config.json"), dataclasses.asdict(config))
     demo_config = DemoConfig.defaults(
         data_dir=config.data_dir, workers=config.demo_workers, camera_scale=config.camera_scale
     )
     generate(config.task, "train", max(config.n_demos), demo_config, progress=progress)
-    device = resolve_device(config.device or "auto")
     runs = []
-    for agent_name in config.agents:
-        for n in config.n_demos:
-            run_dir = os.path.join(config.out, "runs", f"{agent_name}-n{n}")
-            overrides = {
-                "agent": agent_name,
-                "task": config.task,
-                "n_demos": n,
-                "n_steps": config.n_steps,
-                "data_dir": config.data_dir,
-                "run_dir": run_dir,
-                "seed": config.seed,
-                "val_episodes": config.val_episodes,
-                "camera_scale": config.camera_scale,
-                "batch_size": config.batch_size,
-                "device": config.device,
-                "clip_weights": config.clip_weights,
-                "checkpoint_steps": config.checkpoint_steps,
-            }
-            train_config = trainer.TrainConfig.defaults(**overrides)
-            train_config.agent_overrides.update(config.agent_overrides)
-            last = trainer.checkpoint_file(run_dir, "last")
-            finished = trainer.saved_checkpoint_steps(run_dir)[-1:] == [config.n_steps]
-            if not finished:
-                trainer.train(train_config, resume=os.path.exists(last), progress=progress)
-            elif config.val_episodes > 0:
-                trainer.validate(run_dir, train_config, device=device, progress=progress)
-            test: dict[str, float] = {}
-            for step in trainer.saved_checkpoint_steps(run_dir):
-                path = os.path.join(run_dir, "eval", f"{config.task}-test-{step}.json")
-                if not os.path.exists(path):
-                    agent = load_agent(trainer.checkpoint_file(run_dir, step), device, config.clip_weights)
-                    result = evaluate(agent, config.task, "test", config.test_episodes, config.camera_scale, progress)
-                    result.update(checkpoint=step, agent=agent_name, clip_weights=agent.clip_source())
-                    write_json(path, result)
-                test[str(step)] = _load(path)["mean_score"]
-            val_path = os.path.join(run_dir, "val.json")
-            val = _load(val_path) if os.path.exists(val_path) else {"checkpoints": {}}
-            runs.append(summarise_run(config.task, agent_name, n, test, val))
+    for (agent_name, n), train_config in train_configs.items():
+        run = RunDir(train_config.resolved_run_dir())
+        device = resolve_device(train_config.device)
+        validate = config.val_episodes > 0
+        if run.checkpoint_steps()[-1:] != [config.n_steps]:
+            validator = None
+            if validate:
+                validator = SimulatorValidator(
+                    run.root, config.task, config.val_episodes, config.camera_scale, device, progress=progress
+                )
+            train(train_config, resume=run.is_run(), progress=progress, validator=validator)
+        elif validate:
+            validate_run(run.root, config.task, config.val_episodes, config.camera_scale, device, progress=progress)
+        test: dict[str, float] = {}
+        for step in run.checkpoint_steps():
+            path = os.path.join(run.eval_dir, f"{config.task}-test-{step}.json")
+            if not os.path.exists(path):
+                agent = load_agent(run.checkpoint(step), device)
+                result = evaluate(agent, config.task, "test", config.test_episodes, config.camera_scale, progress)
+                result.update(checkpoint=step, agent=agent_name, weight_sources=agent.weight_source_values())
+                write_json(path, result)
+            test[str(step)] = read_json(path)["mean_score"]
+        val = read_json(run.val) if os.path.exists(run.val) else {"checkpoints": {}}
+        runs.append(summarise_run(config.task, agent_name, n, test, val))
     results = {"task": config.task, "n_steps": config.n_steps, "runs": runs}
     write_json(os.path.join(config.out, "results.json"), results)
     with open(os.path.join(config.out, "table.md"), "w") as f:

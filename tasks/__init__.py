@@ -11,6 +11,7 @@ import difflib
 import importlib
 import pkgutil
 
+from cliport.errors import UnknownNameError
 from cliport.tasks.base import GoalStep, Task
 
 _REGISTRY: dict[str, type[Task]] = {}
@@ -66,14 +67,14 @@ def resolve(name: str) -> list[str]:
         return list(_GROUPS[name])
     close = difflib.get_close_matches(name, list(_REGISTRY) + list(_GROUPS), n=3)
     hint = f" (did you mean {', '.join(close)}?)" if close else ""
-    raise KeyError(f"unknown task {name!r}{hint}; `cliport-tasks` lists them")
+    raise UnknownNameError(f"unknown task {name!r}{hint}; `cliport-tasks` lists them")
 
 
 def make(name: str, mode: str = "train") -> Task:
     """A fresh task instance by name; ``mode`` ('train', 'val', 'test') selects its split."""
     resolved = resolve(name)
     if name not in _REGISTRY:
-        raise KeyError(f"{name!r} is a multi-task group, not a single task: {', '.join(resolved)}")
+        raise UnknownNameError(f"{name!r} is a multi-task group, not a single task: {', '.join(resolved)}")
     task = _REGISTRY[name](mode=mode)
     task.name = name
     return task

@@ -1,7 +1,7 @@
 import os
 
 from cliport.evaluation.published import published_scores
-from cliport.evaluation.study import markdown_table, plot_study, summarise_run
+from cliport.study import markdown_table, plot_study, summarise_run
 
 
 def test_published_lookup_maps_task_names():

@@ -1,70 +1,149 @@
-"""Agents by name: ``make_agent("two_stream" | "transporter_only", config)`` and ``load_agent(path)``."""
+"""Pick-and-place agents, found by name through a registry: the only list of agents in the project.
+
+An agent is one module in this package that defines a :class:`PickPlaceAgent` subclass decorated with
+``@register_agent("name", ConfigClass)``, and its defaults in ``configs/<name>.toml``. Everything that
+names agents (CLI choices, the reproduction study, scripts, published numbers) asks :func:`agent_names`
+and the agent classes' attributes (``uses_language``, ``weight_sources``, ``published_columns``).
+"""
 
 from __future__ import annotations
 
+import difflib
 import importlib
 import os
-from dataclasses import dataclass
+import pkgutil
 from typing import Any
 
 import torch
 
 from cliport.agents.base import PickPlaceAgent
-from cliport.agents.config import TransporterOnlyConfig, TwoStreamConfig
+from cliport.agents.config import AgentConfig
+from cliport.errors import CheckpointError, ConfigError, UnknownNameError
+
+_REGISTRY: dict[str, type[PickPlaceAgent]] = {}
+_NOT_AGENTS = {"base", "config"}
+_discovered = False
 
 
-@dataclass(frozen=True)
-class AgentSpec:
-    """Where an agent class lives (imported lazily) and its config class."""
+def register_agent(name: str, config: type[AgentConfig]):
+    """Class decorator: make a PickPlaceAgent subclass buildable as ``make_agent(name)``."""
 
-    module: str
-    cls: str
-    config: type[TransporterOnlyConfig]
+    def wrap(cls: type[PickPlaceAgent]) -> type[PickPlaceAgent]:
+        if name in _REGISTRY and _REGISTRY[name] is not cls:
+            raise ValueError(f"agent name {name!r} is registered twice")
+        cls.name = name
+        cls.config_class = config
+        _REGISTRY[name] = cls
+        return cls
 
-
-AGENTS: dict[str, AgentSpec] = {
-    "transporter_only": AgentSpec("cliport.agents.transporter_only", "TransporterOnlyAgent", TransporterOnlyConfig),
-    "two_stream": AgentSpec("cliport.agents.two_stream", "TwoStreamAgent", TwoStreamConfig),
-}
-
-
-def make_config(name: str, overrides: dict[str, Any] | None = None) -> TransporterOnlyConfig:
-    """The config of agent `name`: TOML defaults updated with `overrides`."""
-    return _spec(name).config.from_dict(overrides)
+    return wrap
 
 
-def make_agent(name: str, config: TransporterOnlyConfig | dict[str, Any] | None = None) -> PickPlaceAgent:
-    """Build agent `name` from a config object, a dict of overrides of the defaults, or the defaults."""
-    spec = _spec(name)
-    if not isinstance(config, spec.config):
+def _discover() -> None:
+    global _discovered
+    if not _discovered:
+        for info in pkgutil.iter_modules(__path__):
+            if info.name not in _NOT_AGENTS and not info.name.startswith("_"):
+                importlib.import_module(f"{__name__}.{info.name}")
+        _discovered = True
+
+
+def agent_names() -> list[str]:
+    """Every registered agent name, sorted."""
+    _discover()
+    return sorted(_REGISTRY)
+
+
+def agent_class(name: str) -> type[PickPlaceAgent]:
+    """The class registered as ``name``; UnknownNameError (with the known names) otherwise."""
+    _discover()
+    if name not in _REGISTRY:
+        close = difflib.get_close_matches(name, list(_REGISTRY), n=1)
+        hint = f" (did you mean {close[0]!r}?)" if close else ""
+        raise UnknownNameError(f"unknown agent {name!r}{hint}; choose one of: {', '.join(sorted(_REGISTRY))}")
+    return _REGISTRY[name]
+
+
+def config_classes() -> list[type[AgentConfig]]:
+    """The config classes of all agents (each once), for deriving command-line flags."""
+    out: list[type[AgentConfig]] = []
+    for name in agent_names():
+        cls = _REGISTRY[name].config_class
+        if cls not in out:
+            out.append(cls)
+    return out
+
+
+def make_config(name: str, overrides: dict[str, Any] | None = None) -> AgentConfig:
+    """The config of agent ``name``: ``configs/<name>.toml`` updated with ``overrides`` (checked)."""
+    from cliport.utils.config import load
+
+    config = load(agent_class(name).config_class, name, overrides)
+    config.validate()
+    return config
+
+
+def make_agent(name: str, config: AgentConfig | dict[str, Any] | None = None) -> PickPlaceAgent:
+    """Build agent ``name`` from a config object, a dict of overrides of the defaults, or the defaults."""
+    cls = agent_class(name)
+    if not isinstance(config, cls.config_class):
         if config is not None and not isinstance(config, dict):
-            raise TypeError(f"{name} needs a {spec.config.__name__} or a dict, got {type(config).__name__}")
-        config = spec.config.from_dict(config)
-    agent_cls = getattr(importlib.import_module(spec.module), spec.cls)
-    return agent_cls(config)
+            raise TypeError(f"{name} needs a {cls.config_class.__name__} or a dict, got {type(config).__name__}")
+        config = make_config(name, config)
+    return cls(config)
+
+
+def read_checkpoint(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """A checkpoint's payload (see ``PickPlaceAgent.checkpoint_payload``); CheckpointError if unusable."""
+    from cliport.utils.files import load_torch
+
+    payload = load_torch(path)
+    if not isinstance(payload, dict) or not {"agent", "config", "state_dict"} <= set(payload):
+        raise CheckpointError(f"{path} is not a cliport checkpoint (no agent, config and weights)")
+    return payload
 
 
 def load_agent(
-    path: str | os.PathLike[str], device: str | torch.device = "cpu", clip_weights: str | None = None
+    path: str | os.PathLike[str],
+    device: str | torch.device = "cpu",
+    weights: dict[str, str] | None = None,
+    clip_weights: str | None = None,
 ) -> PickPlaceAgent:
     """Rebuild an agent from a checkpoint written by ``save_checkpoint``.
 
-    CLIP is reloaded from the recorded source unless `clip_weights` names another one (e.g. the same
-    weights at a different path on this machine).
+    Pretrained parts are reloaded from the sources the checkpoint records unless ``weights`` maps a
+    source field (e.g. ``{"clip_weights": "/other/path/RN50.pt"}``) to another one; a field the agent
+    does not have is ignored. ``clip_weights`` is shorthand for that field.
     """
-    payload = torch.load(path, map_location="cpu", weights_only=True)
+    payload = read_checkpoint(path)
+    cls = agent_class(payload["agent"])
     config = dict(payload["config"])
-    if "clip_weights" in config:  # agents without CLIP ignore a clip_weights override
-        config["clip_weights"] = clip_weights or payload.get("clip_weights") or config["clip_weights"]
-    agent = make_agent(payload["agent"], config)
-    agent.load_trainable_state_dict(payload["state_dict"])
+    overrides = dict(weights or {})
+    if clip_weights is not None:
+        overrides["clip_weights"] = clip_weights
+    for field in cls.weight_sources:
+        recorded = payload.get("weight_sources", {}).get(field) or payload.get(field)
+        config[field] = overrides.get(field) or recorded or config.get(field)
+    try:
+        agent = make_agent(payload["agent"], config)
+    except ConfigError as e:
+        raise CheckpointError(f"{path}: {e}") from e
+    try:
+        agent.load_trainable_state_dict(payload["state_dict"])
+    except (KeyError, RuntimeError) as e:
+        raise CheckpointError(f"{path} does not match its recorded agent config: {e}") from e
     return agent.to(device)
 
 
-def _spec(name: str) -> AgentSpec:
-    if name not in AGENTS:
-        raise KeyError(f"unknown agent {name!r}; known: {sorted(AGENTS)}")
-    return AGENTS[name]
-
-
-__all__ = ["AGENTS", "PickPlaceAgent", "load_agent", "make_agent", "make_config"]
+__all__ = [
+    "AgentConfig",
+    "PickPlaceAgent",
+    "agent_class",
+    "agent_names",
+    "config_classes",
+    "load_agent",
+    "make_agent",
+    "make_config",
+    "read_checkpoint",
+    "register_agent",
+]

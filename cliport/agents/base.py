@@ -2,39 +2,67 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
-import tempfile
-from pathlib import Path
-from typing import Any
+from collections.abc import Callable
+from typing import Any, ClassVar
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
 
-from cliport.agents.config import TransporterOnlyConfig
-from cliport.env.heightmap import pix_to_xyz
+from cliport.agents.config import AgentConfig
+from cliport.env.heightmap import BOUNDS, PIXEL_SIZE, pix_to_xyz
 from cliport.env.transforms import yaw_to_quat
 from cliport.models.clip_backbone import FrozenCLIP
 from cliport.models.heads import PickHead, PlaceHead
 from cliport.models.preprocess import raw_input
+from cliport.utils.files import save_torch
 
 CHECKPOINT_FORMAT = 1
+LossFn = Callable[[dict[str, Any]], tuple[torch.Tensor, dict[str, float]]]
+
+
+def optimizer_step(
+    loss_fn: LossFn,
+    batch: dict[str, Any],
+    optimizer: torch.optim.Optimizer,
+    autocast: contextlib.AbstractContextManager[Any] | None = None,
+) -> dict[str, float]:
+    """The one training step of the project: zero grads, loss (under ``autocast``), backward, step.
+
+    ``loss_fn`` is an agent's ``compute_loss`` or a DDP-wrapped module with the same call signature.
+    """
+    optimizer.zero_grad(set_to_none=True)
+    with autocast or contextlib.nullcontext():
+        loss, info = loss_fn(batch)
+    loss.backward()
+    optimizer.step()
+    return info
 
 
 class PickPlaceAgent(nn.Module):
     """Pick head + place head over a top-down (H, W) RGB-D observation.
 
-    Training batch: ``color`` uint8 (B, H, W, 3), ``height`` float (B, H, W), ``pick_pix`` int64 (B, 2),
-    ``place_pix`` int64 (B, 2), ``place_rot`` int64 (B,) bin of the relative yaw, ``lang`` list[str].
+    Training batch: ``color`` uint8 (B, H, W, 3), ``height`` float (B, H, W), ``pose0``/``pose1`` (B, 7)
+    action poses (or ``pick_pix``/``place_pix`` (B, 2) and ``place_rot`` (B,) targets), ``lang`` list[str].
     """
 
-    name = ""
+    #: Set by ``@register_agent``: the registered name and config class.
+    name: ClassVar[str] = ""
+    config_class: ClassVar[type[AgentConfig]] = AgentConfig
+    #: Whether the instruction changes what the agent does.
+    uses_language: ClassVar[bool] = False
+    #: Config fields naming pretrained weights (recorded in checkpoints, never saved in them).
+    weight_sources: ClassVar[tuple[str, ...]] = ()
+    #: Published columns of this agent: ``{table key in published_results.json: column}``.
+    published_columns: ClassVar[dict[str, str]] = {}
 
     def __init__(
         self,
-        config: TransporterOnlyConfig,
+        config: AgentConfig,
         pick: PickHead,
         place: PlaceHead,
         clip: FrozenCLIP | None = None,
@@ -67,13 +95,41 @@ class PickPlaceAgent(nn.Module):
         sentence = self.sentence_features(lang)
         return self.pick(x, sentence), self.place(x, pick_pix, sentence)
 
+    def action_targets(
+        self, pose0: torch.Tensor | np.ndarray, pose1: torch.Tensor | np.ndarray, hw: tuple[int, int]
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Training targets of pick and place poses (B, 7) (xyz + quaternion xyzw, world frame of the image):
+        pick pixel (B, 2), place pixel (B, 2) (row, col; int64, clamped to the (H, W) image) and the
+        rotation bin (B,) of the relative yaw, as the place head decodes it."""
+        pose0 = torch.as_tensor(pose0, dtype=torch.float64)
+        pose1 = torch.as_tensor(pose1, dtype=torch.float64)
+
+        def pixels(pose: torch.Tensor) -> torch.Tensor:
+            u = torch.round((pose[:, 1] - BOUNDS[1, 0]) / PIXEL_SIZE).clamp(0, hw[0] - 1)
+            v = torch.round((pose[:, 0] - BOUNDS[0, 0]) / PIXEL_SIZE).clamp(0, hw[1] - 1)
+            return torch.stack([u, v], dim=1).long()
+
+        def yaw(pose: torch.Tensor) -> torch.Tensor:
+            x, y, z, w = pose[:, 3], pose[:, 4], pose[:, 5], pose[:, 6]
+            return torch.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+
+        return pixels(pose0), pixels(pose1), self.place.rotation_bin(yaw(pose1) - yaw(pose0))
+
     def compute_loss(self, batch: dict[str, Any]) -> tuple[torch.Tensor, dict[str, float]]:
-        """Cross-entropy over all pick pixels plus over all place pixels x rotations (batch mean)."""
+        """Cross-entropy over all pick pixels plus over all place pixels x rotations (batch mean).
+
+        The targets come from the poses ``pose0``/``pose1`` (B, 7) (see :meth:`action_targets`), or are
+        given directly as ``pick_pix``/``place_pix`` (B, 2) and ``place_rot`` (B,).
+        """
         device = self.device
         x = raw_input(batch["color"], batch["height"]).to(device)
-        pick_pix = torch.as_tensor(batch["pick_pix"], device=device).long()
-        place_pix = torch.as_tensor(batch["place_pix"], device=device).long()
-        place_rot = torch.as_tensor(batch["place_rot"], device=device).long()
+        if "pose0" in batch:
+            pick_pix, place_pix, place_rot = self.action_targets(batch["pose0"], batch["pose1"], x.shape[-2:])
+        else:
+            pick_pix, place_pix, place_rot = batch["pick_pix"], batch["place_pix"], batch["place_rot"]
+        pick_pix = torch.as_tensor(pick_pix, device=device).long()
+        place_pix = torch.as_tensor(place_pix, device=device).long()
+        place_rot = torch.as_tensor(place_rot, device=device).long()
         pick_logits, place_logits = self.logits(x, pick_pix, batch.get("lang"))
         h, w = x.shape[-2:]
         pick_target = pick_pix[:, 0] * w + pick_pix[:, 1]
@@ -84,14 +140,15 @@ class PickPlaceAgent(nn.Module):
         info = {"loss": loss.item(), "pick_loss": pick_loss.item(), "place_loss": place_loss.item()}
         return loss, info
 
-    def train_step(self, batch: dict[str, Any], optimizer: torch.optim.Optimizer) -> dict[str, float]:
-        """One optimiser step on `batch`; returns the loss terms."""
+    def train_step(
+        self,
+        batch: dict[str, Any],
+        optimizer: torch.optim.Optimizer,
+        autocast: contextlib.AbstractContextManager[Any] | None = None,
+    ) -> dict[str, float]:
+        """One optimiser step on `batch` (see :func:`optimizer_step`); returns the loss terms."""
         self.train()
-        optimizer.zero_grad(set_to_none=True)
-        loss, info = self.compute_loss(batch)
-        loss.backward()
-        optimizer.step()
-        return info
+        return optimizer_step(self.compute_loss, batch, optimizer, autocast)
 
     @torch.no_grad()
     def act(self, obs: dict[str, np.ndarray], instruction: str | None = None) -> dict[str, Any]:
@@ -151,26 +208,21 @@ class PickPlaceAgent(nn.Module):
     def clip_source(self) -> str | None:
         return None if self.clip is None else self.clip.source
 
+    def weight_source_values(self) -> dict[str, str]:
+        """``{config field: source}`` of every pretrained part (e.g. ``{"clip_weights": "openai"}``)."""
+        return {field: getattr(self.config, field) for field in self.weight_sources}
+
     def checkpoint_payload(self) -> dict[str, Any]:
-        """What a checkpoint holds: agent name, config, CLIP weight source and trainable weights (CPU)."""
+        """What a checkpoint holds: agent name, config, pretrained weight sources and trainable weights (CPU)."""
         return {
             "format": CHECKPOINT_FORMAT,
             "agent": self.name,
             "config": self.config.to_dict(),
             "clip_weights": self.clip_source(),
+            "weight_sources": self.weight_source_values(),
             "state_dict": {k: v.detach().cpu() for k, v in self.trainable_state_dict().items()},
         }
 
     def save_checkpoint(self, path: str | os.PathLike[str]) -> None:
-        """Write agent name, config, CLIP weight source and trainable weights, atomically."""
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        payload = self.checkpoint_payload()
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-        try:
-            with os.fdopen(fd, "wb") as f:
-                torch.save(payload, f)
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        """Write agent name, config, weight sources and trainable weights, atomically."""
+        save_torch(self.checkpoint_payload(), path)

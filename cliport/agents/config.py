@@ -1,26 +1,25 @@
-"""Agent configurations: plain dataclasses whose defaults live in ``configs/<agent>.toml``."""
+"""The settings every pick-and-place agent has; each agent's own config subclasses :class:`AgentConfig`.
+
+Defaults live in ``configs/<agent name>.toml``; :func:`cliport.agents.make_config` reads them.
+"""
 
 from __future__ import annotations
 
 import dataclasses
-import tomllib
 from dataclasses import dataclass
-from importlib.resources import files
-from typing import Any, Self
-
-
-def _toml_defaults(name: str) -> dict[str, Any]:
-    return tomllib.loads(files("cliport.configs").joinpath(f"{name}.toml").read_text(encoding="utf-8"))
+from typing import Any
 
 
 @dataclass
-class TransporterOnlyConfig:
-    """Transporter Networks agent.
+class AgentConfig:
+    """Settings shared by every agent.
 
-    n_rotations: place rotation bins (bin k = relative yaw k * 2*pi / n_rotations).
-    crop_size: side of the query crop around the pick pixel (even).
-    lr: Adam learning rate.
-    width: channel-width multiplier of the nets; 1.0 is the published size, small values make tiny test nets.
+    Args:
+        n_rotations: place rotation bins (bin k = relative yaw k * 2*pi / n_rotations).
+        crop_size: side in pixels of the query crop around the pick pixel (even; also the key map's padding x 2).
+        lr: Adam learning rate.
+        width: channel-width multiplier of the trainable nets; 1.0 is the published size, small values make
+            tiny test nets.
     """
 
     n_rotations: int
@@ -28,34 +27,31 @@ class TransporterOnlyConfig:
     lr: float
     width: float
 
-    toml_name = "transporter_only"
-
-    @classmethod
-    def from_dict(cls, overrides: dict[str, Any] | None = None) -> Self:
-        """The TOML defaults updated with `overrides`; unknown keys are an error."""
-        values = _toml_defaults(cls.toml_name)
-        values.update(overrides or {})
-        names = {f.name for f in dataclasses.fields(cls)}
-        unknown = set(values) - names
-        if unknown:
-            raise ValueError(f"unknown {cls.toml_name} config keys: {sorted(unknown)}")
-        missing = names - set(values)
-        if missing:
-            raise ValueError(f"missing {cls.toml_name} config keys: {sorted(missing)}")
-        return cls(**values)
-
     def to_dict(self) -> dict[str, Any]:
         """Plain dict of the fields (what checkpoints store)."""
         return dataclasses.asdict(self)
 
+    def validate(self) -> None:
+        """Raise ConfigError for values no agent can be built with."""
+        from cliport.errors import ConfigError
+
+        if self.width <= 0:
+            raise ConfigError(f"width must be > 0, got {self.width}")
+        if self.n_rotations < 1:
+            raise ConfigError(f"n_rotations must be >= 1, got {self.n_rotations}")
+        if self.crop_size < 2 or self.crop_size % 2:
+            raise ConfigError(f"crop_size must be an even number >= 2, got {self.crop_size}")
+        if self.lr <= 0:
+            raise ConfigError(f"lr must be > 0, got {self.lr}")
+
 
 @dataclass
-class TwoStreamConfig(TransporterOnlyConfig):
-    """CLIPort two-stream agent; as :class:`TransporterOnlyConfig` plus
+class CLIPConfig(AgentConfig):
+    """Settings of agents with a frozen CLIP; as :class:`AgentConfig` plus
 
-    clip_weights: "openai", a path to local RN50 weights, or "random" (seeded; tests and benchmarks).
+    Args:
+        clip_weights: "openai" (the published weights: Hugging Face cache, else download), a local RN50
+            weights file, or "random" (seeded; tests and benchmarks only, recorded as such).
     """
 
     clip_weights: str
-
-    toml_name = "two_stream"

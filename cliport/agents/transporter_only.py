@@ -2,20 +2,26 @@
 
 from __future__ import annotations
 
+from cliport.agents import register_agent
 from cliport.agents.base import PickPlaceAgent
-from cliport.agents.config import TransporterOnlyConfig
+from cliport.agents.config import AgentConfig
 from cliport.models.heads import PickHead, PlaceHead
 from cliport.models.streams import TransporterNet
 
 PLACE_FEATURES = 3
 
 
+@register_agent("transporter_only", AgentConfig)
 class TransporterOnlyAgent(PickPlaceAgent):
     """Pick: 1-channel ResNet43_8s over the square-padded input. Place: 3-channel key and query nets."""
 
-    name = "transporter_only"
+    published_columns = {
+        "transporter_paper_test": "transporter",
+        "cliport_table6_val_ravens": "transporter",
+        "cliport_table1_test": "transporter_only",
+    }
 
-    def __init__(self, config: TransporterOnlyConfig) -> None:
+    def __init__(self, config: AgentConfig) -> None:
         pick = PickHead(TransporterNet(1, config.width))
         place = PlaceHead(
             TransporterNet(PLACE_FEATURES, config.width),

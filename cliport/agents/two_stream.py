@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import torch
 
+from cliport.agents import register_agent
 from cliport.agents.base import PickPlaceAgent
-from cliport.agents.config import TwoStreamConfig
+from cliport.agents.config import CLIPConfig
 from cliport.models.clip_backbone import FrozenCLIP, load_clip
 from cliport.models.heads import PickHead, PlaceHead
 from cliport.models.streams import TwoStreamNet
@@ -13,12 +14,15 @@ from cliport.models.streams import TwoStreamNet
 PLACE_FEATURES = 3
 
 
+@register_agent("two_stream", CLIPConfig)
 class TwoStreamAgent(PickPlaceAgent):
     """Pick net fuses its streams by addition, key and query nets by ReLU + 1x1 conv; one shared CLIP."""
 
-    name = "two_stream"
+    uses_language = True
+    weight_sources = ("clip_weights",)
+    published_columns = {"cliport_table6_val_ravens": "cliport_wo_lang", "cliport_table1_test": "cliport_single"}
 
-    def __init__(self, config: TwoStreamConfig, clip: FrozenCLIP | None = None) -> None:
+    def __init__(self, config: CLIPConfig, clip: FrozenCLIP | None = None) -> None:
         clip = clip if clip is not None else load_clip(config.clip_weights)
         pick = PickHead(TwoStreamNet(clip, 1, "add", config.width))
         place = PlaceHead(

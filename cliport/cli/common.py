@@ -1,15 +1,21 @@
-"""Shared pieces of the console scripts: one clear line and a non-zero exit for user errors."""
+"""Shared pieces of the console scripts: one clear line and exit status 2 for the user's errors.
+
+Only the project's own user-error exceptions (:class:`cliport.errors.UserError` and its subclasses) are
+turned into ``error: <message>``; anything else is a bug and keeps its traceback.
+"""
 
 from __future__ import annotations
 
+import argparse
 import logging
 import sys
+import tomllib
 from collections.abc import Callable
-from typing import NoReturn
+from typing import Any, NoReturn
 
+from cliport.errors import ConfigError, UserError
 
-class UserError(Exception):
-    """A problem with the user's input (flags, paths, data): reported as one line, no traceback."""
+__all__ = ["OneLineParser", "UserError", "fail", "parse_key_values", "run_cli"]
 
 
 def fail(message: str, code: int = 2) -> NoReturn:
@@ -17,13 +23,34 @@ def fail(message: str, code: int = 2) -> NoReturn:
     raise SystemExit(code)
 
 
-def run_cli(main: Callable[[], None], user_errors: tuple[type[BaseException], ...] = ()) -> None:
-    """Run ``main``; user errors become ``error: <message>`` on stderr and exit status 2."""
+def run_cli(main: Callable[[], None]) -> None:
+    """Run ``main``; a UserError becomes ``error: <message>`` on stderr and exit status 2."""
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     try:
         main()
-    except (UserError, *user_errors) as e:
-        message = e.args[0] if isinstance(e, KeyError) and e.args else str(e)
-        fail(str(message))
+    except UserError as e:
+        fail(str(e))
     except KeyboardInterrupt:
         fail("interrupted; finished work is kept and a re-run resumes", code=130)
+
+
+def parse_key_values(items: list[str], flag: str) -> dict[str, Any]:
+    """``["n_rotations=12", "clip_weights=random"]`` -> ``{"n_rotations": 12, "clip_weights": "random"}``
+    (values read as TOML where they parse, else as strings)."""
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise ConfigError(f"{flag} must look like KEY=VALUE, got {item!r}")
+        try:
+            out[key] = tomllib.loads(f"v = {value}")["v"]
+        except tomllib.TOMLDecodeError:
+            out[key] = value
+    return out
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """An ArgumentParser whose errors are the project's one ``error:`` line (no usage block), exit 2."""
+
+    def error(self, message: str) -> NoReturn:
+        fail(f"{self.prog}: {message} (see {self.prog} --help)")

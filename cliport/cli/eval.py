@@ -5,112 +5,131 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 
-from cliport.cli.common import UserError, run_cli
-from cliport.utils.config import read_defaults
+from cliport.cli.common import OneLineParser, run_cli
+from cliport.errors import CheckpointError, ConfigError, RunDirError
 
 
-def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
-    d = read_defaults("eval")
-    parser = argparse.ArgumentParser(
+def _parser() -> tuple[argparse.ArgumentParser, list[str]]:
+    from cliport.evaluation.evaluate import EvalConfig
+    from cliport.utils.config import add_flags
+
+    parser = OneLineParser(
         prog="cliport-eval",
         description="Evaluate checkpoints of a training run on val/test episodes, or run one episode with "
-        "--lang and save a video and the pick/place heatmaps.",
+        "--lang and save a video and the pick/place heatmaps. Defaults come from configs/eval.toml.",
     )
     parser.add_argument("--run-dir", required=True, help="a cliport-train run folder")
-    parser.add_argument("--checkpoint", default=d["checkpoint"], help="best | last | STEP | all")
+    dests = add_flags(parser, [EvalConfig])
     parser.add_argument("--task", help="default: the run's task")
-    parser.add_argument("--mode", default=d["mode"], choices=["val", "test"])
-    parser.add_argument("--n-episodes", type=int, default=d["n_episodes"])
     parser.add_argument("--agent", help="expected agent of the checkpoint (checked)")
     parser.add_argument("--lang", help="one episode with this instruction instead of the task's own")
     parser.add_argument("--seed", type=int, help="with --lang: the scene's seed (default: first seed of --mode)")
     parser.add_argument("--video", action="store_true", help="record a GIF of every evaluation episode")
     parser.add_argument("--out", help="output folder (default: RUN/eval)")
-    parser.add_argument("--device", default=d["device"])
-    parser.add_argument("--camera-scale", type=float, default=d["camera_scale"])
     parser.add_argument("--clip-weights", help="load CLIP from here instead of the recorded source")
     parser.add_argument("--no-progress", action="store_true")
-    return parser.parse_args(argv)
+    return parser, dests
 
 
 def checkpoints_to_run(run_dir: str, which: str) -> list[int | str]:
-    from cliport.train.trainer import checkpoint_file, saved_checkpoint_steps
+    """The checkpoints ``--checkpoint`` names: best (from val.json), last, all, or one saved step."""
+    from cliport.utils.files import read_json
+    from cliport.utils.run_dir import RunDir
 
-    steps = saved_checkpoint_steps(run_dir)
-    if not steps and not os.path.exists(checkpoint_file(run_dir, "last")):
-        raise UserError(f"no checkpoints in {run_dir}/checkpoints")
+    run = RunDir(run_dir)
+    steps = run.checkpoint_steps()
+    if not steps and not os.path.exists(run.checkpoint("last")):
+        raise RunDirError(f"no checkpoints in {run_dir}/checkpoints")
     if which == "all":
         return list(steps)
     if which == "last":
         return ["last"]
     if which == "best":
-        path = os.path.join(run_dir, "val.json")
-        if not os.path.exists(path):
-            raise UserError(
+        if not os.path.exists(run.val):
+            raise RunDirError(
                 f"no validation results in {run_dir} (val.json) to pick the best checkpoint: use "
                 "--checkpoint last|STEP, or train with --val-episodes > 0"
             )
-        with open(path) as f:
-            return [int(json.load(f)["best_step"])]
+        return [int(read_json(run.val)["best_step"])]
     if not which.isdigit() or int(which) not in steps:
-        raise UserError(f"--checkpoint must be best, last, all or one of the saved steps {steps}, got {which!r}")
+        raise ConfigError(f"--checkpoint must be best, last, all or one of the saved steps {steps}, got {which!r}")
     return [int(which)]
 
 
 def main(argv: list[str] | None = None) -> None:
-    args = parse_args(argv)
+    parser, dests = _parser()
+    args = parser.parse_args(argv)
+    from cliport import tasks
     from cliport.agents import load_agent
     from cliport.data.seeds import episode_seeds
-    from cliport.evaluation.evaluate import evaluate, resolve_device, write_json
-    from cliport.train.trainer import checkpoint_file, load_run_config
+    from cliport.evaluation.evaluate import EvalConfig, evaluate
+    from cliport.train.trainer import load_run_config
+    from cliport.utils.config import given_flags, load
+    from cliport.utils.device import resolve_device
+    from cliport.utils.files import write_json
+    from cliport.utils.run_dir import RunDir
 
-    if not os.path.isdir(args.run_dir):
-        raise UserError(f"run folder not found: {args.run_dir}")
+    config = load(EvalConfig, "eval", given_flags(args, dests))
     if args.lang is not None and not args.lang.strip():
-        raise UserError("--lang must be a non-empty instruction")
-    if args.n_episodes < 1:
-        raise UserError(f"--n-episodes must be >= 1, got {args.n_episodes}")
-    run = load_run_config(args.run_dir)
-    task = args.task or run.task
-    from cliport import tasks
-
-    names = tasks.resolve(task)
-    out = args.out or os.path.join(args.run_dir, "eval")
-    device = resolve_device(args.device)
-    for which in checkpoints_to_run(args.run_dir, args.checkpoint):
-        path = checkpoint_file(args.run_dir, which)
-        agent = load_agent(path, device=device, clip_weights=args.clip_weights)
+        raise ConfigError("--lang must be a non-empty instruction")
+    if config.n_episodes < 1:
+        raise ConfigError(f"--n-episodes must be >= 1, got {config.n_episodes}")
+    if config.mode not in ("val", "test"):
+        raise ConfigError(f"--mode must be val or test, got {config.mode!r}")
+    run_config = load_run_config(args.run_dir)
+    run = RunDir(args.run_dir)
+    camera_scale = config.camera_scale or run_config.env.camera_scale
+    if camera_scale != run_config.env.camera_scale:
+        print(
+            f"note: rendering at camera scale {camera_scale}; the run's demos and validation used "
+            f"{run_config.env.camera_scale}",
+            file=sys.stderr,
+        )
+    names = tasks.resolve(args.task or run_config.task)
+    out = args.out or run.eval_dir
+    device = resolve_device(config.device)
+    weights = {"clip_weights": args.clip_weights} if args.clip_weights else None
+    for which in checkpoints_to_run(args.run_dir, config.checkpoint):
+        path = run.checkpoint(which)
+        agent = load_agent(path, device=device, weights=weights)
         if args.agent is not None and agent.name != args.agent:
-            raise UserError(f"{path} is a checkpoint of agent {agent.name!r}, not {args.agent!r}")
+            raise CheckpointError(f"{path} is a checkpoint of agent {agent.name!r}, not {args.agent!r}")
         if args.lang is not None:
             from cliport.evaluation.free_form import run_instruction
 
-            seed = args.seed if args.seed is not None else episode_seeds(args.mode, 1)[0]
-            result = run_instruction(agent, names[0], args.mode, seed, args.lang, out, args.camera_scale)
+            seed = args.seed if args.seed is not None else episode_seeds(config.mode, 1)[0]
+            result = run_instruction(agent, names[0], config.mode, seed, args.lang, out, camera_scale)
             print(json.dumps(result, indent=2))
             return
         for name in names:
             video_dir = os.path.join(out, "videos") if args.video else None
             result = evaluate(
-                agent, name, args.mode, args.n_episodes, args.camera_scale, not args.no_progress, video_dir
+                agent,
+                name,
+                config.mode,
+                config.n_episodes,
+                camera_scale,
+                not args.no_progress,
+                video_dir,
+                config.video_fps,
             )
             result.update(
                 checkpoint=which,
                 checkpoint_file=path,
                 agent=agent.name,
                 clip_weights=agent.clip_source(),
+                weight_sources=agent.weight_source_values(),
                 run_dir=args.run_dir,
             )
-            write_json(os.path.join(out, f"{name}-{args.mode}-{which}.json"), result)
+            write_json(os.path.join(out, f"{name}-{config.mode}-{which}.json"), result)
             summary = {k: v for k, v in result.items() if k != "episodes"}
             print(json.dumps(summary))
 
 
 def entry() -> None:
-    from cliport.train.trainer import TrainError
-
-    run_cli(main, user_errors=(KeyError, ValueError, TrainError, FileNotFoundError))
+    run_cli(main)
 
 
 if __name__ == "__main__":

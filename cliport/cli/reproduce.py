@@ -1,72 +1,65 @@
-"""cliport-reproduce: train agents over demo counts, evaluate every checkpoint, compare with the papers."""
+"""cliport-reproduce: train agents over demo counts, evaluate every checkpoint, compare with the papers.
+
+The flags are the fields of ``cliport.study.StudyConfig`` (defaults in configs/study.toml) and the
+agents' settings (``--width``, ``--clip-weights``, ...), which go to every run whose agent has them.
+"""
 
 from __future__ import annotations
 
 import argparse
 import json
 
-from cliport.cli.common import UserError, run_cli
+from cliport.cli.common import OneLineParser, parse_key_values, run_cli
+from cliport.errors import ConfigError
 
 
-def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="cliport-reproduce", description=__doc__.split(":", 1)[1].strip())
-    parser.add_argument("--task", required=True)
-    parser.add_argument("--agents", nargs="+", default=["transporter_only", "two_stream"])
-    parser.add_argument("--n-demos", type=int, nargs="+", default=[1, 10, 100, 1000])
-    parser.add_argument("--n-steps", type=int, default=40000)
-    parser.add_argument("--out", help="study folder (default: studies/TASK)")
-    parser.add_argument("--data-dir", default="data")
-    parser.add_argument("--val-episodes", type=int, default=100)
-    parser.add_argument("--test-episodes", type=int, default=100)
-    parser.add_argument("--checkpoint-steps", type=int, nargs="+")
-    parser.add_argument("--batch-size", type=int)
-    parser.add_argument("--device")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--clip-weights")
-    parser.add_argument("--camera-scale", type=float, default=1.0)
-    parser.add_argument("--demo-workers", type=int, default=1)
-    parser.add_argument("--width", type=float, help="network width multiplier (smoke tests)")
+def _parser() -> tuple[argparse.ArgumentParser, list[str]]:
+    from cliport.agents import agent_names, config_classes
+    from cliport.study import StudyConfig
+    from cliport.utils.config import add_flags
+
+    parser = OneLineParser(
+        prog="cliport-reproduce",
+        description=f"{__doc__.split(':', 1)[1].strip().splitlines()[0]} Agents: {', '.join(agent_names())}.",
+    )
+    taken: set[str] = set()
+    dests = add_flags(parser.add_argument_group("study"), [StudyConfig], taken=taken)
+    dests += add_flags(parser.add_argument_group("agent settings"), config_classes(), "agent_config", taken=taken)
+    parser.add_argument("--agent-option", action="append", default=[], metavar="KEY=VALUE",
+                        help="set any agent config field, e.g. n_rotations=12 (repeatable)")  # fmt: skip
     parser.add_argument("--no-progress", action="store_true")
-    return parser.parse_args(argv)
+    return parser, dests
 
 
 def main(argv: list[str] | None = None) -> None:
-    args = parse_args(argv)
+    parser, dests = _parser()
+    args = parser.parse_args(argv)
     from cliport import tasks
-    from cliport.evaluation.study import StudyConfig, run_study
+    from cliport.agents import agent_class, agent_names
+    from cliport.study import StudyConfig, run_study
+    from cliport.utils.config import given_flags, load, merge
 
-    tasks.resolve(args.task)
-    for agent in args.agents:
-        if agent not in ("transporter_only", "two_stream"):
-            raise UserError(f"unknown agent {agent!r}; choose from transporter_only, two_stream")
-    if min(args.n_demos) < 1 or args.n_steps < 1:
-        raise UserError("--n-demos and --n-steps must be positive")
-    config = StudyConfig(
-        task=args.task,
-        agents=args.agents,
-        n_demos=sorted(set(args.n_demos)),
-        n_steps=args.n_steps,
-        out=args.out or f"studies/{args.task}",
-        data_dir=args.data_dir,
-        val_episodes=args.val_episodes,
-        test_episodes=args.test_episodes,
-        batch_size=args.batch_size,
-        device=args.device,
-        seed=args.seed,
-        clip_weights=args.clip_weights,
-        camera_scale=args.camera_scale,
-        demo_workers=args.demo_workers,
-        agent_overrides={} if args.width is None else {"width": args.width},
-        checkpoint_steps=args.checkpoint_steps,
-    )
+    given = given_flags(args, dests)
+    options = parse_key_values(args.agent_option, "--agent-option")
+    if options:
+        given = merge(given, {"agent_config": options})
+    if not given.get("task"):
+        raise ConfigError("--task is required")
+    config = load(StudyConfig, "study", given)
+    tasks.resolve(config.task)
+    config.agents = config.agents or agent_names()
+    for name in config.agents:
+        agent_class(name)
+    if min(config.n_demos) < 1 or config.n_steps < 1:
+        raise ConfigError("--n-demos and --n-steps must be positive")
+    config.n_demos = sorted(set(config.n_demos))
+    config.out = config.out or f"studies/{config.task}"
     results = run_study(config, progress=not args.no_progress)
     print(json.dumps({"out": config.out, "runs": len(results["runs"])}))
 
 
 def entry() -> None:
-    from cliport.data.dataset import DatasetError
-
-    run_cli(main, user_errors=(KeyError, ValueError, DatasetError, FileNotFoundError))
+    run_cli(main)
 
 
 if __name__ == "__main__":

@@ -1,131 +1,111 @@
-"""cliport-train: train a two_stream (CLIPort) or transporter_only agent on demonstrations."""
+"""cliport-train: train an agent on demonstrations, then validate its checkpoints by task success.
+
+Every flag is a field of the train config (``cliport.train.config.TrainConfig``), of the agents' configs
+or of the workcell config; defaults come from ``configs/train.toml``, ``configs/<agent>.toml`` and
+``configs/env.toml``, and the run saves its resolved config as ``RUN/config.json``.
+"""
 
 from __future__ import annotations
 
 import argparse
 import json
-import os
+import sys
+from typing import Any
 
-from cliport.cli.common import UserError, run_cli
+from cliport.cli.common import OneLineParser, parse_key_values, run_cli
+from cliport.errors import ConfigError, RunDirError
 
-AGENT_NAMES = ("two_stream", "transporter_only")
 
+def _parser() -> tuple[argparse.ArgumentParser, list[str]]:
+    from cliport.agents import agent_names, config_classes
+    from cliport.env.environment import EnvConfig
+    from cliport.train.config import TrainConfig
+    from cliport.utils.config import add_flags
 
-def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="cliport-train",
-        description="Train an agent; defaults come from configs/train.toml. Checkpoints and metrics go to --run-dir.",
+        description=f"Train an agent ({', '.join(agent_names())}); defaults come from configs/train.toml, "
+        "configs/<agent>.toml and configs/env.toml. Checkpoints and metrics go to --run-dir.",
     )
-    parser.add_argument("--agent", help="two_stream or transporter_only")
-    parser.add_argument("--task", help="task name or multi-task group (cliport-tasks lists them)")
-    parser.add_argument("--n-demos", type=int, help="training episodes per task")
-    parser.add_argument("--n-steps", type=int, help="optimiser steps")
-    parser.add_argument("--batch-size", type=int)
-    parser.add_argument("--lr", type=float, help="learning rate (default: the agent's)")
-    parser.add_argument("--data-dir")
-    parser.add_argument("--run-dir", help="default: runs/TASK-AGENT-nN-sSEED")
-    parser.add_argument("--clip-weights", help="two_stream: 'openai', a local weights file, or 'random'")
-    parser.add_argument("--device", help="auto, cpu, cuda, cuda:1 ...")
-    parser.add_argument("--seed", type=int)
-    parser.add_argument("--resume", action="store_true", help="continue the run in --run-dir from its last save")
-    parser.add_argument("--num-workers", type=int, help="DataLoader workers")
-    parser.add_argument("--amp", choices=["auto", "bf16", "none"])
-    parser.add_argument("--val-episodes", type=int, help="val episodes per checkpoint (0: skip validation)")
-    parser.add_argument("--camera-scale", type=float, help="camera resolution of validation episodes")
-    parser.add_argument("--checkpoint-steps", type=int, nargs="+", help="steps to save checkpoints at")
-    parser.add_argument("--checkpoint-every", type=int)
-    parser.add_argument("--log-every", type=int)
-    parser.add_argument("--width", type=float, help="network width multiplier (1.0 = published size)")
+    taken: set[str] = set()
+    dests = add_flags(parser.add_argument_group("run"), [TrainConfig], taken=taken)
+    dests += add_flags(parser.add_argument_group("agent"), config_classes(), "agent_config", taken=taken)
+    dests += add_flags(parser.add_argument_group("workcell of the validation episodes"), [EnvConfig], "env",
+                       skip=("raw_images",), taken=taken)  # fmt: skip
     parser.add_argument(
         "--agent-option",
         action="append",
         default=[],
         metavar="KEY=VALUE",
-        help="override any agent config field, e.g. n_rotations=12 (repeatable)",
+        help="set any agent config field, e.g. n_rotations=12 (repeatable)",
     )
+    parser.add_argument("--resume", action="store_true", help="continue the run in --run-dir from its last save")
     parser.add_argument("--no-progress", action="store_true")
-    return parser.parse_args(argv)
+    return parser, dests
 
 
-def _agent_options(args: argparse.Namespace) -> dict:
-    import tomllib
+def config_from_args(args: argparse.Namespace, dests: list[str]):
+    """The resolved TrainConfig: defaults (or the resumed run's saved config) updated with the given flags."""
+    from cliport.train.config import TrainConfig
+    from cliport.train.trainer import load_run_config
+    from cliport.utils.config import given_flags, merge
 
-    options = {}
-    if args.width is not None:
-        options["width"] = args.width
-    for item in args.agent_option:
-        key, sep, value = item.partition("=")
-        if not sep or not key:
-            raise UserError(f"--agent-option must look like KEY=VALUE, got {item!r}")
-        try:
-            options[key] = tomllib.loads(f"v = {value}")["v"]
-        except tomllib.TOMLDecodeError:
-            options[key] = value
-    return options
+    given: dict[str, Any] = given_flags(args, dests)
+    if args.resume and "run_dir" in given:
+        given.setdefault("agent", load_run_config(given["run_dir"]).agent)
+    if "agent_config" in given:
+        # The agent flags are those of every agent; drop (and name) the ones this agent does not have.
+        from dataclasses import fields
 
+        from cliport.agents import agent_class
+        from cliport.utils.config import read_defaults
 
-def config_from_args(args: argparse.Namespace):
-    from cliport.train.trainer import TrainConfig, load_run_config
-
-    given = {
-        "agent": args.agent,
-        "task": args.task,
-        "n_demos": args.n_demos,
-        "n_steps": args.n_steps,
-        "batch_size": args.batch_size,
-        "lr": args.lr,
-        "data_dir": args.data_dir,
-        "run_dir": args.run_dir,
-        "clip_weights": args.clip_weights,
-        "device": args.device,
-        "seed": args.seed,
-        "num_workers": args.num_workers,
-        "amp": args.amp,
-        "val_episodes": args.val_episodes,
-        "camera_scale": args.camera_scale,
-        "checkpoint_steps": args.checkpoint_steps,
-        "checkpoint_every": args.checkpoint_every,
-        "log_every": args.log_every,
-    }
-    given = {k: v for k, v in given.items() if v is not None}
+        agent = given.get("agent") or read_defaults("train")["agent"]
+        own = {f.name for f in fields(agent_class(agent).config_class)}
+        for key in sorted(set(given["agent_config"]) - own):
+            print(f"note: {agent} has no setting {key}; --{key.replace('_', '-')} is ignored", file=sys.stderr)
+            del given["agent_config"][key]
+    options = parse_key_values(args.agent_option, "--agent-option")
+    given = merge(given, {"agent_config": options}) if options else given
     if args.resume:
-        if args.run_dir is None:
-            raise UserError("--resume needs --run-dir (the run to continue)")
-        saved = load_run_config(args.run_dir)
+        if "run_dir" not in given:
+            raise ConfigError("--resume needs --run-dir (the run to continue)")
+        saved = load_run_config(given["run_dir"])
         if "agent" in given and given["agent"] != saved.agent:
-            raise UserError(f"{args.run_dir} is a run of agent {saved.agent!r}, not {given['agent']!r}")
-        values = {**saved.__dict__, **given}
-        values["agent_overrides"] = {**saved.agent_overrides, **_agent_options(args)}
-        return TrainConfig(**values)
-    if "task" not in given:
-        raise UserError("--task is required")
-    config = TrainConfig.defaults(**given)
-    config.agent_overrides.update(_agent_options(args))
-    return config
+            raise RunDirError(f"{given['run_dir']} is a run of agent {saved.agent!r}, not {given['agent']!r}")
+        return TrainConfig.build(given, base=saved.to_dict())
+    if not given.get("task"):
+        raise ConfigError("--task is required")
+    return TrainConfig.build(given)
 
 
 def main(argv: list[str] | None = None) -> None:
-    args = parse_args(argv)
-    if args.agent is not None and args.agent not in AGENT_NAMES:
-        raise UserError(f"unknown agent {args.agent!r}; choose one of: {', '.join(AGENT_NAMES)}")
-    config = config_from_args(args)
+    parser, dests = _parser()
+    args = parser.parse_args(argv)
+    config = config_from_args(args, dests)
     from cliport import tasks
+    from cliport.evaluation.validation import SimulatorValidator
     from cliport.train.trainer import train
+    from cliport.utils.device import resolve_device
 
     tasks.resolve(config.task)
-    if config.n_steps < 1:
-        raise UserError(f"--n-steps must be >= 1, got {config.n_steps}")
-    if config.clip_weights not in (None, "openai", "random") and not os.path.exists(config.clip_weights):
-        raise UserError(f"--clip-weights file not found: {config.clip_weights}")
-    summary = train(config, resume=args.resume, progress=not args.no_progress)
-    print(json.dumps(summary, indent=2))
+    validator = None
+    if config.val_episodes > 0:
+        validator = SimulatorValidator(
+            config.resolved_run_dir(),
+            config.task,
+            config.val_episodes,
+            config.env.camera_scale,
+            resolve_device(config.device),
+            progress=not args.no_progress,
+        )
+    summary = train(config, resume=args.resume, progress=not args.no_progress, validator=validator)
+    if summary.pop("rank", 0) == 0:
+        print(json.dumps(summary, indent=2))
 
 
 def entry() -> None:
-    from cliport.data.dataset import DatasetError
-    from cliport.data.episode_io import EpisodeFileError
-
-    run_cli(main, user_errors=(KeyError, ValueError, DatasetError, EpisodeFileError, FileNotFoundError))
+    run_cli(main)
 
 
 if __name__ == "__main__":

@@ -43,6 +43,26 @@ def transform_pixel(m: np.ndarray, pix: tuple[int, int]) -> tuple[int, int]:
     return int(round(y)), int(round(x))
 
 
+def transform_pose(m: np.ndarray, pose: np.ndarray) -> np.ndarray:
+    """A world pose (7,) = xyz + quaternion xyzw moved as its heightmap pixel moves under affine ``m``.
+
+    The position is snapped to its pixel's centre and carried to where that pixel lands (unrounded, so
+    that ``xyz_to_pix`` of the result equals :func:`transform_pixel` of the pixel); the yaw turns by
+    the affine's rotation (image columns and rows run along world x and y); z and tilt are kept.
+    """
+    from cliport.env import heightmap as hm
+    from cliport.env.transforms import multiply, yaw_to_quat
+
+    u, v = hm.xyz_to_pix(pose[:3])
+    x, y = m @ np.array([v, u, 1.0])
+    out = np.array(pose, dtype=np.float64)
+    out[0] = hm.BOUNDS[0, 0] + x * hm.PIXEL_SIZE
+    out[1] = hm.BOUNDS[1, 0] + y * hm.PIXEL_SIZE
+    turn = math.atan2(m[1, 0], m[0, 0])
+    out[3:] = multiply(((0.0, 0.0, 0.0), yaw_to_quat(turn)), ((0.0, 0.0, 0.0), tuple(out[3:])))[1]
+    return out
+
+
 def warp(image: np.ndarray, m: np.ndarray) -> np.ndarray:
     """Apply affine ``m`` to an (H, W) or (H, W, C) image; nearest neighbour, zeros outside."""
     rows, cols = image.shape[:2]

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 import os
 from collections import OrderedDict
 from typing import Any
@@ -12,30 +11,24 @@ import torch
 from torch.utils.data import Dataset
 
 from cliport.data import augment
-from cliport.data.episode_io import EpisodeData, load_episode
+from cliport.data.episode_io import EpisodeData, load_episode, read_meta
 from cliport.data.generate import dataset_dir, existing_seeds
 from cliport.env import heightmap as hm
-from cliport.env.transforms import quat_to_yaw
+from cliport.errors import UnknownNameError, UserError
 
 
-class DatasetError(ValueError):
+class DatasetError(UserError, ValueError):
     """The requested data is missing or unusable; the message names the path."""
-
-
-def rotation_bin(pose0_quat: np.ndarray, pose1_quat: np.ndarray, n_rotations: int) -> int:
-    """Bin of the relative yaw (place yaw - pick yaw); bin k <-> angle k * 2*pi / n_rotations."""
-    theta = (quat_to_yaw(pose1_quat) - quat_to_yaw(pose0_quat)) % (2 * math.pi)
-    return int(round(theta / (2 * math.pi / n_rotations))) % n_rotations
 
 
 class DemoDataset(Dataset):
     """Steps of oracle episodes of one task or a multi-task group.
 
     Each sample is a random step (index -> (episode, step); shuffle in the DataLoader) with the SE(2)
-    augmentation applied to the image and both action pixels:
-      color (320, 160, 3) uint8, height (320, 160) float32 metres, pick_pix (2,) int64 (row, col),
-      place_pix (2,) int64, place_rot () int64 rotation bin of place yaw - pick yaw, lang str,
-      task str.
+    augmentation applied to the image and both action poses alike:
+      color (320, 160, 3) uint8, height (320, 160) float32 metres, pose0 (7,) and pose1 (7,) float64
+      pick and place poses (xyz + quaternion xyzw) in the frame of the augmented image, lang str, task str.
+    Turning poses into training targets (pixels, rotation bins) is the agent's business.
     ``n_demos`` episodes per task are a subset chosen with ``seed`` (the same seed, the same subset).
     """
 
@@ -47,17 +40,15 @@ class DemoDataset(Dataset):
         n_demos: int | None = None,
         seed: int = 0,
         augment: bool = True,
-        n_rotations: int = 36,
         cache_episodes: int = 128,
     ):
         from cliport import tasks
 
         try:
             names = tasks.resolve(task)
-        except KeyError as e:
-            raise DatasetError(e.args[0]) from e
+        except UnknownNameError as e:
+            raise DatasetError(str(e)) from e
         self.augment = augment
-        self.n_rotations = n_rotations
         self.cache_episodes = cache_episodes
         self.files: list[tuple[str, str]] = []  # (task, path)
         for name in names:
@@ -97,6 +88,14 @@ class DemoDataset(Dataset):
             self._cache.popitem(last=False)
         return data
 
+    def recorded_camera_scales(self) -> dict[str, float | None]:
+        """Per task, the camera_scale its first episode file records (None for files that predate it)."""
+        out: dict[str, float | None] = {}
+        for task, path in self.files:
+            if task not in out:
+                out[task] = read_meta(path).get("camera_scale")
+        return out
+
     def _generator(self) -> np.random.Generator:
         # Seeded from torch so that DataLoader workers differ and torch.manual_seed reproduces a run.
         if self._rng is None:
@@ -107,18 +106,17 @@ class DemoDataset(Dataset):
         e, t = self.index[i]
         ep = self.episode(e)
         color, height = ep.color[t], ep.height[t]
-        pick = hm.xyz_to_pix(ep.pose0[t, :3])
-        place = hm.xyz_to_pix(ep.pose1[t, :3])
+        pose0, pose1 = ep.pose0[t].copy(), ep.pose1[t].copy()
         if self.augment:
+            pick, place = hm.xyz_to_pix(pose0[:3]), hm.xyz_to_pix(pose1[:3])
             m = augment.sample_se2(self._generator(), height.shape, [pick, place])
             color, height = augment.warp(color, m), augment.warp(height, m)
-            pick, place = augment.transform_pixel(m, pick), augment.transform_pixel(m, place)
+            pose0, pose1 = augment.transform_pose(m, pose0), augment.transform_pose(m, pose1)
         return {
             "color": np.ascontiguousarray(color),
             "height": np.ascontiguousarray(height, dtype=np.float32),
-            "pick_pix": np.array(pick, dtype=np.int64),
-            "place_pix": np.array(place, dtype=np.int64),
-            "place_rot": np.int64(rotation_bin(ep.pose0[t, 3:], ep.pose1[t, 3:], self.n_rotations)),
+            "pose0": pose0,
+            "pose1": pose1,
             "lang": ep.lang_goal[t],
             "task": self.files[e][0],
         }

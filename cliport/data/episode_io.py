@@ -20,10 +20,12 @@ from typing import Any
 
 import numpy as np
 
+from cliport.errors import UserError
+
 HEIGHT_UNIT = 1e-4  # metres per stored height unit
 
 
-class EpisodeFileError(ValueError):
+class EpisodeFileError(UserError, ValueError):
     """A missing, truncated or otherwise unreadable episode file; the message names the path."""
 
 
@@ -72,6 +74,17 @@ def save_episode(path: str, steps: list[dict[str, Any]], meta: dict[str, Any], r
         os.fsync(f.fileno())
     os.replace(tmp, path)
     return os.path.getsize(path)
+
+
+def read_meta(path: str) -> dict[str, Any]:
+    """The ``meta`` record of an episode file alone (cheap: the images are not decompressed)."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return json.loads(str(z["meta"]))
+    except FileNotFoundError as e:
+        raise EpisodeFileError(f"episode file not found: {path}") from e
+    except (zipfile.BadZipFile, KeyError, ValueError, OSError, EOFError) as e:
+        raise EpisodeFileError(f"corrupt episode file {path}: {e}") from e
 
 
 def load_episode(path: str) -> EpisodeData:

@@ -24,11 +24,24 @@ from tqdm import tqdm
 from cliport import __version__
 from cliport.data.episode_io import save_episode
 from cliport.data.seeds import episode_seeds
-from cliport.utils.config import build, read_defaults
+from cliport.errors import ConfigError, UserError
+from cliport.utils.config import defaults as config_defaults
+from cliport.utils.files import write_json
 
 
 @dataclass
 class DemoConfig:
+    """Demonstration generation settings; defaults in ``configs/demos.toml``.
+
+    Args:
+        data_dir: folder that holds one ``<task>-<mode>`` folder of episode files per task and split.
+        workers: parallel simulator processes.
+        camera_scale: camera resolution factor of the rendered observations (1.0 = 640 x 480, as the
+            reference; 0.5 is faster); recorded in every episode and checked against validation's.
+        raw_images: also store the three raw camera images per step (~1 MB per step even compressed).
+        max_failures: give up when the oracle fails on more than this many seeds in one run.
+    """
+
     data_dir: str
     workers: int
     camera_scale: float
@@ -37,10 +50,11 @@ class DemoConfig:
 
     @classmethod
     def defaults(cls, **overrides: Any) -> DemoConfig:
-        return build(cls, read_defaults("demos"), **overrides)
+        """The TOML defaults with the keyword overrides that are not None."""
+        return config_defaults(cls, "demos", **overrides)
 
 
-class GenerationError(RuntimeError):
+class GenerationError(UserError, RuntimeError):
     """Demonstration generation cannot go on (e.g. the oracle keeps failing)."""
 
 
@@ -55,13 +69,6 @@ def episode_path(folder: str, seed: int) -> str:
 def existing_seeds(folder: str) -> list[int]:
     """Seeds of the finished episode files in a dataset folder, sorted."""
     return sorted(int(m.group(1)) for f in os.listdir(folder) if (m := re.fullmatch(r"(\d{6})\.npz", f)))
-
-
-def _write_json(path: str, data: Any) -> None:
-    tmp = f"{path}.tmp-{os.getpid()}"
-    with open(tmp, "w") as f:
-        json.dump(data, f, indent=2)
-    os.replace(tmp, path)
 
 
 # ---------------------------------------------------------------------- worker side
@@ -121,11 +128,11 @@ def generate(
     tasks.make(task, mode)  # fail fast on an unknown task or mode
     index, count = shard
     if not (count >= 1 and 0 <= index < count):
-        raise ValueError(f"shard must be I/K with 0 <= I < K, got {index}/{count}")
+        raise ConfigError(f"shard must be I/K with 0 <= I < K, got {index}/{count}")
     if n < 0:
-        raise ValueError(f"n must be >= 0, got {n}")
+        raise ConfigError(f"n must be >= 0, got {n}")
     if config.workers < 1:
-        raise ValueError(f"workers must be >= 1, got {config.workers}")
+        raise ConfigError(f"workers must be >= 1, got {config.workers}")
     target = n // count + (1 if index < n % count else 0)
     folder = dataset_dir(config.data_dir, task, mode)
     os.makedirs(folder, exist_ok=True)
@@ -177,7 +184,7 @@ def generate(
             bar.update(1)
         else:
             new_failures[result["seed"]] = round(result["total_reward"], 4)
-            _write_json(failures_path, {str(k): v for k, v in sorted({**known_failures, **new_failures}.items())})
+            write_json(failures_path, {str(k): v for k, v in sorted({**known_failures, **new_failures}.items())})
             if len(new_failures) > config.max_failures:
                 raise GenerationError(
                     f"the {task} oracle failed on {len(new_failures)} seeds in this run (limit max_failures="
@@ -237,5 +244,5 @@ def generate(
         "camera_scale": config.camera_scale,
         "cliport_version": __version__,
     }
-    _write_json(os.path.join(folder, f"summary{suffix}.json"), summary)
+    write_json(os.path.join(folder, f"summary{suffix}.json"), summary)
     return summary

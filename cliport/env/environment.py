@@ -20,7 +20,7 @@ from cliport.env.grippers import Spatula, Suction
 from cliport.env.primitives import PickPlaceSettings, PushSettings, pick_place, push
 from cliport.env.robot import UR5
 from cliport.env.transforms import Pose
-from cliport.utils.config import build, read_defaults
+from cliport.utils.config import defaults as config_defaults
 
 log = logging.getLogger(__name__)
 
@@ -31,6 +31,18 @@ class ActionError(ValueError):
 
 @dataclass
 class EnvConfig:
+    """Workcell settings; defaults in ``configs/env.toml``.
+
+    Args:
+        camera_scale: camera resolution factor (1.0 renders 640 x 480; 0.5 renders 320 x 240, faster; the
+            fused map is always 320 x 160); demos and validation of one run must use the same value.
+        renderer: "auto" (EGL on an NVIDIA GPU, else TinyRenderer), "egl" or "cpu".
+        sim_hz: physics steps per simulated second.
+        settle_max_steps: steps allowed for the scene to come to rest after an action.
+        settle_speed: objects slower than this (m/s) count as at rest.
+        raw_images: include the three cameras' colour and depth images in every observation.
+    """
+
     camera_scale: float
     renderer: str
     sim_hz: int
@@ -40,7 +52,8 @@ class EnvConfig:
 
     @classmethod
     def defaults(cls, **overrides: Any) -> EnvConfig:
-        return build(cls, read_defaults("env"), **overrides)
+        """The TOML defaults with the keyword overrides that are not None."""
+        return config_defaults(cls, "env", **overrides)
 
 
 class Task(Protocol):

@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import statistics
+from dataclasses import dataclass
 from typing import Any
 
-import torch
 from tqdm import tqdm
 
 from cliport.data.rollout import run_episode
@@ -16,12 +15,25 @@ from cliport.data.seeds import episode_seeds
 from cliport.env.environment import EnvConfig, Environment
 
 
-def resolve_device(name: str) -> torch.device:
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    if name.startswith("cuda") and not torch.cuda.is_available():
-        raise ValueError(f"device {name!r} was asked for but CUDA is not available")
-    return torch.device(name)
+@dataclass
+class EvalConfig:
+    """Settings of ``cliport-eval``; defaults in ``configs/eval.toml``.
+
+    Args:
+        mode: split of the episodes: val or test.
+        n_episodes: episodes per task (the first seeds of the split).
+        checkpoint: best (by validation success), last, a step number, or all.
+        device: auto (CUDA when available), cpu, cuda, ...
+        camera_scale: camera resolution of the episodes; unset = the run's (what its demos were rendered at).
+        video_fps: frames per second of the --video GIFs.
+    """
+
+    mode: str
+    n_episodes: int
+    checkpoint: str
+    device: str
+    video_fps: int
+    camera_scale: float | None = None
 
 
 def confidence_interval(scores: list[float]) -> tuple[float, float]:
@@ -99,11 +111,3 @@ def evaluate(
         "success_ci95": [round(success_low, 2), round(success_high, 2)],
         "episodes": episodes,
     }
-
-
-def write_json(path: str, data: Any) -> None:
-    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-    tmp = f"{path}.tmp-{os.getpid()}"
-    with open(tmp, "w") as f:
-        json.dump(data, f, indent=2)
-    os.replace(tmp, path)

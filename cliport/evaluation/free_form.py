@@ -2,13 +2,23 @@
 
 from __future__ import annotations
 
+import hashlib
 import os
+import re
 from typing import Any
 
 from cliport.data.rollout import run_episode
 from cliport.env.environment import EnvConfig, Environment
-from cliport.evaluation.evaluate import agent_policy, write_json
+from cliport.evaluation.evaluate import agent_policy
 from cliport.evaluation.visualize import action_panel, save_png, save_video
+from cliport.utils.files import write_json
+
+
+def instruction_slug(lang: str, max_words: int = 6) -> str:
+    """A file-name part unique to an instruction: its first words and a short hash of the whole text."""
+    words = re.findall(r"[a-z0-9]+", lang.lower())[:max_words]
+    digest = hashlib.sha1(lang.encode()).hexdigest()[:8]
+    return "-".join([*words, digest])
 
 
 def run_instruction(
@@ -18,11 +28,11 @@ def run_instruction(
     from cliport import tasks
 
     notes = []
-    if agent.name == "transporter_only":
-        notes.append("transporter_only ignores language: the instruction cannot change what it does")
+    if not agent.uses_language:
+        notes.append(f"{agent.name} ignores language: the instruction cannot change what it does")
         print(f"note: {notes[0]}")
     os.makedirs(out_dir, exist_ok=True)
-    stem = f"{task_name}-seed{seed}"
+    stem = f"{task_name}-seed{seed}-{instruction_slug(lang)}"
     panels: list[str] = []
 
     def on_act(obs, result, instruction):

@@ -20,17 +20,12 @@ _CLIPORT_NAMES = {
     "packing-unseen-objects-group": "packing-unseen-google-objects-group",
 }
 
-# (table, column, training steps behind the number, protocol) per our agent.
-_SOURCES = {
-    "transporter_only": [
-        ("transporter_paper_test", "transporter", 40000, "Transporter Networks paper, test, best of 1k-40k ckpts"),
-        ("cliport_table6_val_ravens", "transporter", 200000, "CLIPort Table 6, validation"),
-        ("cliport_table1_test", "transporter_only", 200000, "CLIPort Table 1, test, ckpt chosen on val"),
-    ],
-    "two_stream": [
-        ("cliport_table6_val_ravens", "cliport_wo_lang", 200000, "CLIPort Table 6 (no language), validation"),
-        ("cliport_table1_test", "cliport_single", 200000, "CLIPort Table 1, test, ckpt chosen on val"),
-    ],
+# Per published table: the training steps behind its numbers and how they were measured. Which column
+# belongs to which agent is the agent's own ``published_columns``.
+TABLES = {
+    "transporter_paper_test": (40000, "Transporter Networks paper, test, best of 1k-40k ckpts"),
+    "cliport_table6_val_ravens": (200000, "CLIPort Table 6, validation"),
+    "cliport_table1_test": (200000, "CLIPort Table 1, test, ckpt chosen on val"),
 }
 
 
@@ -43,9 +38,14 @@ def published_results() -> dict[str, Any]:
 
 def published_scores(task: str, agent: str, n_demos: int) -> list[dict[str, Any]]:
     """Published scores (x100) of ``agent`` on ``task`` with ``n_demos`` demos, one per source."""
+    from cliport.agents import agent_class
+
     data = published_results()
     out = []
-    for table, column, steps, label in _SOURCES.get(agent, []):
+    for table, column in agent_class(agent).published_columns.items():
+        steps, label = TABLES[table]
+        if table == "cliport_table6_val_ravens" and column == "cliport_wo_lang":
+            label = "CLIPort Table 6 (no language), validation"
         name = _CLIPORT_NAMES.get(task, task) if table == "cliport_table1_test" else task
         value = data.get(table, {}).get(name, {}).get(column, {}).get(str(n_demos))
         if value is not None:

@@ -16,10 +16,20 @@ def heatmap_overlay(color: np.ndarray, heatmap: np.ndarray, alpha: float = 0.55)
     return np.uint8(np.clip((1 - alpha) * color.astype(np.float32) + alpha * colored.astype(np.float32), 0, 255))
 
 
+def fill_empty_cells(color: np.ndarray) -> np.ndarray:
+    """A copy of a fused (H, W, 3) colour map whose empty cells (no camera saw them: all zero) are filled
+    from their neighbours, for pictures only: agents always see the map as fused."""
+    empty = np.all(color == 0, axis=-1)
+    if not empty.any() or empty.all():
+        return color
+    return cv2.inpaint(np.ascontiguousarray(color), empty.astype(np.uint8), 2, cv2.INPAINT_TELEA)
+
+
 def action_panel(obs: dict, act: dict, instruction: str | None, scale: int = 2) -> np.ndarray:
     """Observation | pick heatmap with the pick pixel | place heatmap with the place pixel and its yaw,
-    side by side (each 320 x 160 scaled by ``scale``), with the instruction written above."""
-    color = obs["color"]
+    side by side (each 320 x 160 scaled by ``scale``), with the instruction written above. Empty cells of
+    the fused map are filled for display (:func:`fill_empty_cells`)."""
+    color = fill_empty_cells(obs["color"])
     pick = heatmap_overlay(color, act["pick_heatmap"])
     place = heatmap_overlay(color, act["place_heatmap"])
     panels = [

@@ -22,6 +22,8 @@ from pathlib import Path
 import torch
 from torch import nn
 
+from cliport.errors import UserError
+
 MODEL_NAME = "RN50-quickgelu"
 SENTENCE_DIM = 1024
 # Channels of the trunk's intermediate features: stem, layer1..layer4 (strides 4, 4, 8, 16, 32).
@@ -34,7 +36,7 @@ _HUB_HOST = ("huggingface.co", 443)
 log = logging.getLogger(__name__)
 
 
-class CLIPWeightsUnavailable(RuntimeError):
+class CLIPWeightsUnavailable(UserError, RuntimeError):
     """The requested CLIP weights could not be loaded."""
 
 

@@ -73,6 +73,12 @@ class PlaceHead(nn.Module):
         self.crop_size = crop_size
         self.n_rotations = n_rotations
 
+    def rotation_bin(self, relative_yaw: torch.Tensor) -> torch.Tensor:
+        """Bin of a relative place yaw (place yaw - pick yaw, radians), (B,) float -> (B,) int64:
+        the nearest k with k * 2*pi / n_rotations, modulo n_rotations."""
+        step = 2 * math.pi / self.n_rotations
+        return torch.round(torch.remainder(relative_yaw.double(), 2 * math.pi) / step).long() % self.n_rotations
+
     def query_crops(self, padded: torch.Tensor, pick_pix: torch.Tensor) -> torch.Tensor:
         """Padded raw (B, C, H + crop, W + crop), pick (B, 2) -> crops (B * R, C, crop, crop), bin-major
         within each sample."""

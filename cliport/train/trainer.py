@@ -1,26 +1,19 @@
 """Training: a step loop over augmented demonstration batches with scheduled checkpoints, a rolling
-resume point, metrics, optional DDP (torchrun) and mixed precision, then validation by task success.
+resume point, metrics, optional DDP (torchrun) and mixed precision.
 
-Run folder layout::
-
-    RUN/config.json             the resolved TrainConfig
-    RUN/metrics.csv             step, losses, throughput (and RUN/tensorboard/ when tensorboard is installed)
-    RUN/checkpoints/step-001000.pt ...   scheduled checkpoints (agent weights + config)
-    RUN/checkpoints/last.pt     rolling resume point (also holds the optimiser and step)
-    RUN/val.json                validation success of every scheduled checkpoint and the best one
+The run folder's layout is :mod:`cliport.utils.run_dir`. Validation is not this module's business: the
+caller passes a :class:`Validator` (``cliport.evaluation.validation`` has the simulator one), which
+hears of every saved checkpoint and is finished when training ends.
 """
 
 from __future__ import annotations
 
 import contextlib
 import csv
-import dataclasses
-import json
 import os
-import re
 import time
-from dataclasses import dataclass, field
-from typing import Any
+from collections.abc import Iterator
+from typing import Any, Protocol
 
 import torch
 import torch.distributed as dist
@@ -28,42 +21,26 @@ from torch import nn
 from torch.utils.data import DataLoader, RandomSampler
 from tqdm import tqdm
 
-from cliport.utils.config import build, read_defaults
+from cliport.agents.base import optimizer_step
+from cliport.errors import RunDirError, UserError
+from cliport.train.config import TrainConfig
+from cliport.utils.device import resolve_device
+from cliport.utils.files import load_torch, save_torch, write_json
+from cliport.utils.run_dir import RunDir
 
 
-@dataclass
-class TrainConfig:
-    agent: str
-    n_demos: int
-    n_steps: int
-    batch_size: int
-    data_dir: str
-    device: str
-    seed: int
-    num_workers: int
-    amp: str
-    checkpoint_steps: list[int]
-    checkpoint_every: int
-    save_last_every: int
-    log_every: int
-    val_episodes: int
-    camera_scale: float
-    task: str = ""
-    run_dir: str | None = None
-    lr: float | None = None
-    clip_weights: str | None = None
-    agent_overrides: dict[str, Any] = field(default_factory=dict)  # e.g. {"width": 0.25} for tiny nets
-
-    @classmethod
-    def defaults(cls, **overrides: Any) -> TrainConfig:
-        return build(cls, read_defaults("train"), **overrides)
-
-    def resolved_run_dir(self) -> str:
-        return self.run_dir or os.path.join("runs", f"{self.task}-{self.agent}-n{self.n_demos}-s{self.seed}")
-
-
-class TrainError(ValueError):
+class TrainError(RunDirError):
     """A training run cannot start or resume as asked; the message says why."""
+
+
+class Validator(Protocol):
+    """Scores checkpoints of a run; called by :func:`train` on the process that saves them."""
+
+    def checkpoint_saved(self, step: int, path: str) -> None:
+        """A scheduled checkpoint has been written (validation may start now or be queued)."""
+
+    def finish(self) -> dict[str, Any]:
+        """Training has ended: validate whatever is left and return the results."""
 
 
 def checkpoint_schedule(config: TrainConfig) -> list[int]:
@@ -79,30 +56,16 @@ def checkpoint_schedule(config: TrainConfig) -> list[int]:
     return sorted(steps)
 
 
-def checkpoint_file(run_dir: str, step: int | str) -> str:
-    name = "last.pt" if step == "last" else f"step-{int(step):06d}.pt"
-    return os.path.join(run_dir, "checkpoints", name)
+def load_run_config(run_dir: str) -> TrainConfig:
+    """The resolved config a run saved (any layout version); RunDirError if the folder is not a run."""
+    run = RunDir(run_dir)
+    if not os.path.isdir(run_dir):
+        raise RunDirError(f"run folder not found: {run_dir}")
+    if not run.is_run():
+        raise RunDirError(f"{run_dir} is not a training run (no config.json)")
+    from cliport.utils.files import read_json
 
-
-def saved_checkpoint_steps(run_dir: str) -> list[int]:
-    folder = os.path.join(run_dir, "checkpoints")
-    if not os.path.isdir(folder):
-        return []
-    return sorted(int(m.group(1)) for f in os.listdir(folder) if (m := re.fullmatch(r"step-(\d{6})\.pt", f)))
-
-
-def _atomic_torch_save(obj: Any, path: str) -> None:
-    os.makedirs(os.path.dirname(path), exist_ok=True)
-    tmp = f"{path}.tmp-{os.getpid()}"
-    torch.save(obj, tmp)
-    os.replace(tmp, path)
-
-
-def _write_json(path: str, data: Any) -> None:
-    tmp = f"{path}.tmp-{os.getpid()}"
-    with open(tmp, "w") as f:
-        json.dump(data, f, indent=2)
-    os.replace(tmp, path)
+    return TrainConfig.from_saved(read_json(run.config))
 
 
 class _LossModule(nn.Module):
@@ -138,33 +101,60 @@ def _tensorboard_writer(path: str):
     return SummaryWriter(path)
 
 
-def _batches(loader: DataLoader):
+def _batches(loader: DataLoader) -> Iterator[dict[str, Any]]:
     while True:
         yield from loader
 
 
-def load_run_config(run_dir: str) -> TrainConfig:
-    path = os.path.join(run_dir, "config.json")
-    if not os.path.exists(path):
-        raise TrainError(f"{run_dir} is not a training run (no config.json)")
-    with open(path) as f:
-        data = json.load(f)
-    return TrainConfig(**data)
+def _next_batch(batches: Iterator[dict[str, Any]]) -> dict[str, Any]:
+    """The next batch; a user error raised in a DataLoader worker comes back as itself, one line."""
+    try:
+        return next(batches)
+    except Exception as e:
+        # DataLoader re-raises worker exceptions as the same class with the worker's traceback in the message.
+        message = str(e)
+        if isinstance(e, UserError) and "Traceback" in message:
+            lines = [line for line in message.strip().splitlines() if line.strip()]
+            raise type(e)(lines[-1].split(": ", 1)[-1]) from None
+        raise
 
 
-def train(config: TrainConfig, resume: bool = False, progress: bool = True) -> dict[str, Any]:
-    """Train (or resume) a run; returns a summary. Validation runs afterwards when val_episodes > 0."""
-    from cliport.agents import make_agent
+def _check_start(config: TrainConfig, resume: bool) -> RunDir:
+    run = RunDir(config.resolved_run_dir())
+    if resume:
+        if not run.is_run():
+            raise TrainError(f"nothing to resume in {run.root}: it holds no run (no config.json)")
+        return run
+    if run.is_run():
+        if run.has_progress():
+            raise TrainError(
+                f"run folder {run.root} already holds a run: pass --resume to continue it, or choose --run-dir"
+            )
+        # A run that died before its first save has nothing to lose: start it again from scratch.
+    return run
+
+
+def _check_demo_camera_scale(dataset: Any, config: TrainConfig) -> None:
+    if config.val_episodes == 0:
+        return
+    for task, scale in dataset.recorded_camera_scales().items():
+        if scale is not None and abs(scale - config.env.camera_scale) > 1e-9:
+            raise TrainError(
+                f"the {task} demos were rendered at camera_scale {scale} but validation would render at "
+                f"{config.env.camera_scale}: pass --camera-scale {scale}"
+            )
+
+
+def train(
+    config: TrainConfig, resume: bool = False, progress: bool = True, validator: Validator | None = None
+) -> dict[str, Any]:
+    """Train (or resume) a run; returns a summary. ``validator`` (on rank 0) scores the checkpoints."""
+    from cliport.agents import make_agent, read_checkpoint
     from cliport.data.dataset import DemoDataset
-    from cliport.evaluation.evaluate import resolve_device
 
     rank, world, local_rank = _distributed()
-    run_dir = config.resolved_run_dir()
-    last_path = checkpoint_file(run_dir, "last")
-    if not resume and os.path.exists(os.path.join(run_dir, "config.json")):
-        raise TrainError(f"run folder {run_dir} already holds a run: pass --resume to continue it, or choose --run-dir")
-    if resume and not os.path.exists(last_path):
-        raise TrainError(f"nothing to resume in {run_dir}: no checkpoints/last.pt")
+    run = _check_start(config, resume)
+    last_path = run.checkpoint("last")
     if world > 1:
         dist.barrier()  # every rank has checked the run folder before rank 0 writes into it
     device = resolve_device(config.device)
@@ -172,21 +162,14 @@ def train(config: TrainConfig, resume: bool = False, progress: bool = True) -> d
         device = torch.device("cuda", local_rank)
     torch.manual_seed(config.seed * 1000 + rank)
 
-    overrides = dict(config.agent_overrides)
-    if config.lr is not None:
-        overrides["lr"] = config.lr
-    if config.clip_weights is not None and config.agent == "two_stream":
-        overrides["clip_weights"] = config.clip_weights
-    agent = make_agent(config.agent, overrides).to(device)
-    n_rotations = agent.config.n_rotations
-    dataset = DemoDataset(
-        config.data_dir, config.task, "train", config.n_demos, seed=config.seed, n_rotations=n_rotations
-    )
+    agent = make_agent(config.agent, config.agent_config).to(device)
+    dataset = DemoDataset(config.data_dir, config.task, "train", config.n_demos, seed=config.seed)
+    _check_demo_camera_scale(dataset, config)
     optimizer = agent.make_optimizer()
 
     step = 0
-    if resume:
-        payload = torch.load(last_path, map_location="cpu", weights_only=False)
+    if resume and os.path.exists(last_path):
+        payload = read_checkpoint(last_path)
         if payload["agent"] != config.agent:
             raise TrainError(f"{last_path} is a checkpoint of agent {payload['agent']!r}, not {config.agent!r}")
         agent.load_trainable_state_dict(payload["state_dict"])
@@ -194,8 +177,8 @@ def train(config: TrainConfig, resume: bool = False, progress: bool = True) -> d
         step = int(payload["trainer"]["step"])
         torch.set_rng_state(payload["trainer"]["torch_rng"])
     if rank == 0:
-        os.makedirs(run_dir, exist_ok=True)
-        _write_json(os.path.join(run_dir, "config.json"), dataclasses.asdict(config))
+        os.makedirs(run.root, exist_ok=True)
+        write_json(run.config, config.to_dict())
 
     model: nn.Module = _LossModule(agent)
     if world > 1:
@@ -215,7 +198,6 @@ def train(config: TrainConfig, resume: bool = False, progress: bool = True) -> d
         drop_last=True,
     )
     schedule = set(checkpoint_schedule(config))
-    metrics_path = os.path.join(run_dir, "metrics.csv")
     fields = ["step", "loss", "pick_loss", "place_loss", "steps_per_second", "samples_per_second", "elapsed_s"]
 
     def save(kind: int | str) -> None:
@@ -228,26 +210,23 @@ def train(config: TrainConfig, resume: bool = False, progress: bool = True) -> d
                 "optimizer": optimizer.state_dict(),
                 "torch_rng": torch.get_rng_state(),
             }
-        _atomic_torch_save(payload, checkpoint_file(run_dir, kind))
+        save_torch(payload, run.checkpoint(kind))
+        if kind != "last" and validator is not None:
+            validator.checkpoint_saved(int(kind), run.checkpoint(kind))
 
-    tensorboard = _tensorboard_writer(os.path.join(run_dir, "tensorboard")) if rank == 0 else None
+    tensorboard = _tensorboard_writer(run.tensorboard) if rank == 0 else None
     bar = tqdm(total=config.n_steps, initial=step, desc=f"train {config.agent}", disable=not progress or rank != 0)
     start, window_start, window_steps = time.perf_counter(), time.perf_counter(), 0
     sums = {"loss": 0.0, "pick_loss": 0.0, "place_loss": 0.0}
     batches = _batches(loader)
     try:
-        with open(metrics_path, "a", newline="") if rank == 0 else contextlib.nullcontext() as metrics_file:
+        with open(run.metrics, "a", newline="") if rank == 0 else contextlib.nullcontext() as metrics_file:
             writer = csv.DictWriter(metrics_file, fieldnames=fields) if rank == 0 else None
             if writer is not None and metrics_file.tell() == 0:
                 writer.writeheader()
             agent.train()
             while step < config.n_steps:
-                batch = next(batches)
-                optimizer.zero_grad(set_to_none=True)
-                with autocast:
-                    loss, info = model(batch)
-                loss.backward()
-                optimizer.step()
+                info = optimizer_step(model, _next_batch(batches), optimizer, autocast)
                 step += 1
                 window_steps += 1
                 for k in sums:
@@ -282,43 +261,18 @@ def train(config: TrainConfig, resume: bool = False, progress: bool = True) -> d
         bar.close()
         if tensorboard is not None:
             tensorboard.close()
-    summary: dict[str, Any] = {"run_dir": run_dir, "steps": step, "checkpoints": saved_checkpoint_steps(run_dir)}
-    if rank == 0 and config.val_episodes > 0:
-        summary["validation"] = validate(run_dir, config, device=device, progress=progress)
+    summary: dict[str, Any] = {"run_dir": run.root, "steps": step, "checkpoints": run.checkpoint_steps()}
+    if rank == 0 and validator is not None:
+        summary["validation"] = validator.finish()
     if world > 1:
         dist.barrier()
+    summary["rank"] = rank
     return summary
 
 
-def validate(run_dir: str, config: TrainConfig, device: torch.device | None = None, progress: bool = True) -> dict:
-    """Evaluate every saved checkpoint on the val episodes (resumable) and record the best in val.json."""
-    from cliport.agents import load_agent
-    from cliport.evaluation.evaluate import evaluate, resolve_device
-
-    device = device or resolve_device(config.device)
-    path = os.path.join(run_dir, "val.json")
-    results: dict[str, Any] = {"task": config.task, "n_episodes": config.val_episodes, "checkpoints": {}}
-    if os.path.exists(path):
-        with open(path) as f:
-            previous = json.load(f)
-        if previous.get("n_episodes") == config.val_episodes:
-            results = previous
-    for step in saved_checkpoint_steps(run_dir):
-        if str(step) in results["checkpoints"]:
-            continue
-        agent = load_agent(checkpoint_file(run_dir, step), device=device, clip_weights=config.clip_weights)
-        scores = []
-        for task in _tasks_of(config.task):
-            r = evaluate(agent, task, "val", config.val_episodes, config.camera_scale, progress=progress)
-            scores.append(r["mean_score"])
-        results["checkpoints"][str(step)] = {"mean_score": round(sum(scores) / len(scores), 2), "per_task": scores}
-        best = max(results["checkpoints"].items(), key=lambda kv: (kv[1]["mean_score"], -int(kv[0])))
-        results["best_step"], results["best_score"] = int(best[0]), best[1]["mean_score"]
-        _write_json(path, results)
-    return results
-
-
-def _tasks_of(name: str) -> list[str]:
-    from cliport import tasks
-
-    return tasks.resolve(name)
+def load_resume_state(path: str) -> dict[str, Any]:
+    """The trainer state saved in a run's ``checkpoints/last.pt`` (step, optimiser, RNG)."""
+    payload = load_torch(path)
+    if "trainer" not in payload:
+        raise TrainError(f"{path} holds no trainer state")
+    return payload["trainer"]

@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 import torch
 
-from cliport.agents import PickPlaceAgent, load_agent, make_agent, make_config
-from cliport.agents.config import TransporterOnlyConfig, TwoStreamConfig
+from cliport.agents import PickPlaceAgent, agent_class, agent_names, load_agent, make_agent, make_config
+from cliport.agents.config import AgentConfig, CLIPConfig
+from cliport.errors import ConfigError, UnknownNameError
 
 H, W = 64, 32
 TINY = {"width": 0.125, "crop_size": 32, "n_rotations": 8}
@@ -72,15 +73,36 @@ def two_stream() -> PickPlaceAgent:
 
 
 def test_registry_and_default_configs() -> None:
+    assert agent_names() == ["transporter_only", "two_stream"]
     ts = make_config("two_stream")
-    assert isinstance(ts, TwoStreamConfig)
+    assert isinstance(ts, CLIPConfig)
     assert (ts.n_rotations, ts.crop_size, ts.lr, ts.width, ts.clip_weights) == (36, 64, 1e-4, 1.0, "openai")
     to = make_config("transporter_only")
-    assert type(to) is TransporterOnlyConfig and (to.n_rotations, to.crop_size) == (36, 64)
-    with pytest.raises(KeyError):
-        make_agent("nope")
-    with pytest.raises(ValueError):
+    assert type(to) is AgentConfig and (to.n_rotations, to.crop_size) == (36, 64)
+    assert agent_class("two_stream").uses_language and not agent_class("transporter_only").uses_language
+    assert agent_class("two_stream").weight_sources == ("clip_weights",)
+    with pytest.raises(UnknownNameError, match="unknown agent 'two_steam' \\(did you mean 'two_stream'\\?\\)"):
+        make_agent("two_steam")
+    with pytest.raises(ConfigError, match="unknown AgentConfig key\\(s\\) 'n_rotation' \\(did you mean 'n_rotations'"):
         make_config("transporter_only", {"n_rotation": 3})
+    with pytest.raises(ConfigError, match="n_rotations must be int, got 'x'"):
+        make_config("transporter_only", {"n_rotations": "x"})
+    for width in (0, -1):
+        with pytest.raises(ConfigError, match="width must be > 0"):
+            make_config("transporter_only", {"width": width})
+
+
+def test_action_targets_follow_the_place_heads_convention() -> None:
+    from cliport.env.heightmap import pix_to_xyz
+    from cliport.env.transforms import yaw_to_quat
+
+    agent = make_agent("transporter_only", TINY)
+    height = np.zeros((320, 160), np.float32)
+    pose0 = np.array([[*pix_to_xyz((12, 34), height), *yaw_to_quat(1.0)]])
+    pose1 = np.array([[*pix_to_xyz((300, 5), height), *yaw_to_quat(1.0 - math.radians(45))]])
+    pick, place, rot = agent.action_targets(pose0, pose1, (320, 160))
+    assert pick.tolist() == [[12, 34]] and place.tolist() == [[300, 5]]
+    assert rot.tolist() == [7]  # -45 degrees = 315 degrees = bin 7 of 8 (45 degrees each)
 
 
 @pytest.mark.parametrize("batch_size", [1, 3])

@@ -9,15 +9,16 @@ from cliport.cli import demos as demos_cli
 from cliport.cli import eval as eval_cli
 from cliport.cli import train as train_cli
 from cliport.cli.common import run_cli
-from cliport.data.dataset import DatasetError
 from cliport.train import trainer
+from cliport.utils.files import load_torch
+from cliport.utils.run_dir import RunDir
 
 TASK = "block-insertion"
 TINY = ["--width", "0.125", "--agent-option", "n_rotations=4", "--agent-option", "crop_size=32"]
 
 
-def _run(main, argv, errors=(KeyError, ValueError, DatasetError, FileNotFoundError)):
-    run_cli(lambda: main(argv), errors)
+def _run(main, argv):
+    run_cli(lambda: main(argv))
 
 
 @pytest.fixture(scope="module")
@@ -50,7 +51,7 @@ def runs(data_dir, tmp_path_factory):
 @pytest.mark.parametrize("agent", ["transporter_only", "two_stream"])
 def test_train_then_eval(runs, agent, capsys):
     run_dir = runs[agent]
-    assert trainer.saved_checkpoint_steps(run_dir) == [5, 10]
+    assert RunDir(run_dir).checkpoint_steps() == [5, 10]
     with open(os.path.join(run_dir, "config.json")) as f:
         assert json.load(f)["agent"] == agent
     with open(os.path.join(run_dir, "val.json")) as f:
@@ -84,12 +85,10 @@ def test_resume_after_interruption(data_dir, tmp_path, monkeypatch):
         _run(train_cli.main, _train_args(data_dir, run_dir, "transporter_only", extra=["--val-episodes", "0"]))
     assert stop.value.code == 130
     monkeypatch.setattr(trainer, "_batches", real)
-    import torch
-
-    assert torch.load(trainer.checkpoint_file(run_dir, "last"), weights_only=False)["trainer"]["step"] == 7
+    assert load_torch(RunDir(run_dir).checkpoint("last"))["trainer"]["step"] == 7
     _run(train_cli.main, ["--run-dir", run_dir, "--resume", "--no-progress"])
-    assert torch.load(trainer.checkpoint_file(run_dir, "last"), weights_only=False)["trainer"]["step"] == 10
-    assert trainer.saved_checkpoint_steps(run_dir) == [5, 10]
+    assert load_torch(RunDir(run_dir).checkpoint("last"))["trainer"]["step"] == 10
+    assert RunDir(run_dir).checkpoint_steps() == [5, 10]
     with pytest.raises(SystemExit) as stop:  # trained without validation: no "best" to pick
         _run(eval_cli.main, ["--run-dir", run_dir, "--checkpoint", "best"])
     assert stop.value.code == 2

@@ -7,8 +7,9 @@ import torch
 from torch.utils.data import DataLoader
 
 from cliport.data import augment
-from cliport.data.dataset import DatasetError, DemoDataset, rotation_bin
-from cliport.env.transforms import yaw_to_quat
+from cliport.data.dataset import DatasetError, DemoDataset
+from cliport.env import heightmap as hm
+from cliport.env.transforms import quat_to_yaw, yaw_to_quat
 
 
 def test_augmentation_keeps_labels_on_scene_points(tmp_path, make_synthetic_dataset):
@@ -18,10 +19,12 @@ def test_augmentation_keeps_labels_on_scene_points(tmp_path, make_synthetic_data
     moved = 0
     for i in range(len(ds)):
         s = ds[i]
-        assert tuple(s["color"][tuple(s["pick_pix"])]) == (255, 0, 0)
-        assert tuple(s["color"][tuple(s["place_pix"])]) == (0, 255, 0)
-        assert s["height"][tuple(s["pick_pix"])] == pytest.approx(0.05, abs=1e-4)
-        assert s["place_rot"] == 9  # 90 degrees relative: invariant to the rotation
+        pick, place = hm.xyz_to_pix(s["pose0"][:3]), hm.xyz_to_pix(s["pose1"][:3])
+        assert tuple(s["color"][pick]) == (255, 0, 0)
+        assert tuple(s["color"][place]) == (0, 255, 0)
+        assert s["height"][pick] == pytest.approx(0.05, abs=1e-4)
+        relative = (quat_to_yaw(s["pose1"][3:]) - quat_to_yaw(s["pose0"][3:])) % (2 * math.pi)
+        assert relative == pytest.approx(math.pi / 2)  # invariant to the rotation
         moved += int(
             tuple(s["color"].reshape(-1, 3).sum(0))
             != tuple(ds.episode(ds.index[i][0]).color[ds.index[i][1]].reshape(-1, 3).sum(0))
@@ -47,13 +50,21 @@ def test_subset_is_seeded_and_loader_batches(tmp_path, make_synthetic_dataset):
     assert a.files == b.files and len(a) == 4
     batch = next(iter(DataLoader(a, batch_size=3, shuffle=True, num_workers=2)))
     assert batch["color"].shape == (3, 320, 160, 3) and batch["color"].dtype == torch.uint8
-    assert batch["pick_pix"].shape == (3, 2) and batch["place_rot"].shape == (3,)
+    assert batch["pose0"].shape == (3, 7) and batch["pose1"].shape == (3, 7)
     assert len(batch["lang"]) == 3
 
 
-def test_rotation_bin_convention():
-    assert rotation_bin(yaw_to_quat(0.0), yaw_to_quat(math.radians(30)), 36) == 3
-    assert rotation_bin(yaw_to_quat(1.0), yaw_to_quat(1.0 - math.radians(10)), 36) == 35
+def test_pose_transform_matches_pixel_transform_and_turns_the_yaw():
+    rng = np.random.default_rng(5)
+    for _ in range(50):
+        pix = (int(rng.integers(0, 320)), int(rng.integers(0, 160)))
+        yaw = float(rng.uniform(-math.pi, math.pi))
+        pose = np.array([*hm.pix_to_xyz(pix, np.zeros((320, 160), np.float32)), *yaw_to_quat(yaw)])
+        m = augment.sample_se2(rng, (320, 160), [pix])
+        moved = augment.transform_pose(m, pose)
+        assert hm.xyz_to_pix(moved[:3]) == augment.transform_pixel(m, pix)
+        turn = math.atan2(m[1, 0], m[0, 0])
+        assert math.cos(quat_to_yaw(moved[3:]) - yaw - turn) == pytest.approx(1.0)
 
 
 def test_clear_errors(tmp_path, make_synthetic_dataset):

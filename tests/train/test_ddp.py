@@ -4,9 +4,8 @@ import os
 import subprocess
 import sys
 
-import torch
-
-from cliport.train import trainer
+from cliport.utils.files import load_torch
+from cliport.utils.run_dir import RunDir
 
 
 def test_torchrun_two_processes_gloo(tmp_path, make_synthetic_dataset):
@@ -22,10 +21,11 @@ def test_torchrun_two_processes_gloo(tmp_path, make_synthetic_dataset):
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     run = subprocess.run(cmd, capture_output=True, text=True, timeout=600, env=env)
     assert run.returncode == 0, run.stderr[-3000:]
-    assert trainer.saved_checkpoint_steps(run_dir) == [3]
+    assert RunDir(run_dir).checkpoint_steps() == [3]
     with open(os.path.join(run_dir, "metrics.csv")) as f:
         rows = f.read().split()
     assert rows[0].startswith("step,") and len(rows) == 4
     assert rows[1].split(",")[-2] != ""  # samples/s counts both processes
-    payload = torch.load(trainer.checkpoint_file(run_dir, "last"), weights_only=False)
+    payload = load_torch(RunDir(run_dir).checkpoint("last"))
     assert payload["trainer"]["step"] == 3 and payload["agent"] == "transporter_only"
+    assert run.stdout.count('"run_dir"') == 1  # one summary, from rank 0 only

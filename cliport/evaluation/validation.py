@@ -1,0 +1,77 @@
+"""Validation by task success: every scheduled checkpoint of a run on the val episodes, best one recorded.
+
+``RUN/val.json`` is rewritten atomically after each checkpoint, so an interrupted validation keeps what
+it finished and a re-run does only the missing checkpoints. :class:`SimulatorValidator` is what
+``cliport-train`` and the study hand to the trainer.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import torch
+
+from cliport.evaluation.evaluate import evaluate
+from cliport.utils.files import read_json, write_json
+from cliport.utils.run_dir import RunDir
+
+
+def validate_run(
+    run_dir: str,
+    task: str,
+    n_episodes: int,
+    camera_scale: float,
+    device: torch.device,
+    weights: dict[str, str] | None = None,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Evaluate every saved checkpoint of ``run_dir`` not yet in its val.json on ``n_episodes`` val
+    episodes of each task of ``task`` (a task or group); returns the val.json content."""
+    from cliport import tasks
+    from cliport.agents import load_agent
+
+    run = RunDir(run_dir)
+    results: dict[str, Any] = {"task": task, "n_episodes": n_episodes, "checkpoints": {}}
+    if os.path.exists(run.val):
+        previous = read_json(run.val)
+        if previous.get("n_episodes") == n_episodes:
+            results = previous
+    for step in run.checkpoint_steps():
+        if str(step) in results["checkpoints"]:
+            continue
+        agent = load_agent(run.checkpoint(step), device=device, weights=weights)
+        scores = [
+            evaluate(agent, name, "val", n_episodes, camera_scale, progress=progress)["mean_score"]
+            for name in tasks.resolve(task)
+        ]
+        results["checkpoints"][str(step)] = {"mean_score": round(sum(scores) / len(scores), 2), "per_task": scores}
+        best = max(results["checkpoints"].items(), key=lambda kv: (kv[1]["mean_score"], -int(kv[0])))
+        results["best_step"], results["best_score"] = int(best[0]), best[1]["mean_score"]
+        write_json(run.val, results)
+    return results
+
+
+class SimulatorValidator:
+    """Validates a run's checkpoints in the simulator once training has finished (see ``Validator``)."""
+
+    def __init__(
+        self,
+        run_dir: str,
+        task: str,
+        n_episodes: int,
+        camera_scale: float,
+        device: torch.device,
+        weights: dict[str, str] | None = None,
+        progress: bool = True,
+    ) -> None:
+        self.run_dir, self.task, self.n_episodes, self.camera_scale = run_dir, task, n_episodes, camera_scale
+        self.device, self.weights, self.progress = device, weights, progress
+
+    def checkpoint_saved(self, step: int, path: str) -> None:
+        """Nothing to do yet: checkpoints are validated together in :meth:`finish`."""
+
+    def finish(self) -> dict[str, Any]:
+        return validate_run(
+            self.run_dir, self.task, self.n_episodes, self.camera_scale, self.device, self.weights, self.progress
+        )

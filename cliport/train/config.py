@@ -1,0 +1,136 @@
+"""The training config: run settings with the agent's and the workcell's settings nested inside."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from cliport.agents import AgentConfig, agent_class
+from cliport.env.environment import EnvConfig
+from cliport.errors import ConfigError
+from cliport.utils.config import defaults_file, from_dict, merge, read_defaults, to_dict
+
+
+@dataclass
+class TrainConfig:
+    """A training run; defaults in ``configs/train.toml``, ``configs/<agent>.toml`` and ``configs/env.toml``.
+
+    Args:
+        agent: registered agent name (``cliport-train --help`` lists them).
+        task: task name or multi-task group to train on.
+        n_demos: training episodes per task (the first n of a seeded shuffle of the demo folder).
+        n_steps: optimiser steps.
+        batch_size: samples per step (the reference trains at 1; lr is not rescaled).
+        data_dir: folder of the demonstrations (``cliport-demos --data-dir``).
+        run_dir: output folder; empty for runs/TASK-AGENT-nN-sSEED.
+        device: auto (CUDA when available), cpu, cuda, cuda:1, ...
+        seed: seed of the demo subset, initialisation, sampling and augmentation.
+        num_workers: DataLoader worker processes.
+        amp: auto (bf16 autocast on CUDA, none on CPU), bf16 or none.
+        checkpoint_steps: steps to save checkpoints at (then every checkpoint_every steps).
+        checkpoint_every: steps between checkpoints after the listed ones (0: none).
+        save_last_every: steps between rolling resume points (checkpoints/last.pt).
+        log_every: steps between rows of metrics.csv.
+        val_episodes: val episodes per checkpoint (0: no validation).
+        agent_config: the agent's own settings (its config class; defaults in configs/<agent>.toml).
+        env: workcell settings of the validation episodes (defaults in configs/env.toml).
+    """
+
+    agent: str
+    task: str
+    n_demos: int
+    n_steps: int
+    batch_size: int
+    data_dir: str
+    run_dir: str
+    device: str
+    seed: int
+    num_workers: int
+    amp: str
+    checkpoint_steps: list[int]
+    checkpoint_every: int
+    save_last_every: int
+    log_every: int
+    val_episodes: int
+    agent_config: AgentConfig
+    env: EnvConfig
+
+    @classmethod
+    def build(cls, overrides: Mapping[str, Any] | None = None, base: Mapping[str, Any] | None = None) -> TrainConfig:
+        """``base`` (default: configs/train.toml) updated with ``overrides`` (nested dicts), checked.
+
+        The agent's settings start from ``configs/<agent>.toml`` and the workcell's from ``configs/env.toml``.
+        """
+        source = "saved config" if base is not None else defaults_file("train")
+        data = merge(dict(base) if base is not None else read_defaults("train"), overrides or {})
+        name = data.get("agent")
+        if not isinstance(name, str):
+            raise ConfigError(f"{source}: agent must be an agent name, got {name!r}")
+        agent_cls = agent_class(name)
+        known = {f.name for f in dataclasses.fields(agent_cls.config_class)}
+        unknown = sorted(set(data.get("agent_config", {})) - known)
+        if unknown:
+            raise ConfigError(
+                f"agent {name} has no setting(s) {', '.join(unknown)} (its settings: {', '.join(sorted(known))})"
+            )
+        if base is None:
+            data["agent_config"] = merge(read_defaults(name), data.get("agent_config", {}))
+            data["env"] = merge(read_defaults("env"), data.get("env", {}))
+        config = from_dict(cls, data, source, nested={"agent_config": agent_cls.config_class})
+        config.validate()
+        return config
+
+    @classmethod
+    def from_saved(cls, data: Mapping[str, Any], overrides: Mapping[str, Any] | None = None) -> TrainConfig:
+        """A run's saved config.json (older flat layouts upgraded) updated with ``overrides``."""
+        return cls.build(overrides, base=upgrade_saved_config(data))
+
+    def validate(self) -> None:
+        """Raise ConfigError for settings no run can use."""
+        minimum = {
+            "n_demos": 1,
+            "n_steps": 1,
+            "batch_size": 1,
+            "num_workers": 0,
+            "save_last_every": 1,
+            "log_every": 1,
+            "val_episodes": 0,
+            "checkpoint_every": 0,
+        }
+        for key, low in minimum.items():
+            if getattr(self, key) < low:
+                raise ConfigError(f"{key} must be >= {low}, got {getattr(self, key)}")
+        if self.amp not in ("auto", "bf16", "none"):
+            raise ConfigError(f"amp must be auto, bf16 or none, got {self.amp!r}")
+        if self.env.camera_scale <= 0:
+            raise ConfigError(f"camera_scale must be > 0, got {self.env.camera_scale}")
+        self.agent_config.validate()
+
+    def resolved_run_dir(self) -> str:
+        return self.run_dir or os.path.join("runs", f"{self.task}-{self.agent}-n{self.n_demos}-s{self.seed}")
+
+    def to_dict(self) -> dict[str, Any]:
+        return to_dict(self)
+
+
+def upgrade_saved_config(data: Mapping[str, Any]) -> dict[str, Any]:
+    """A config.json of any version as the current nested layout (runs saved before it was nested kept
+    ``lr``, ``clip_weights`` and ``agent_overrides`` beside the run settings and ``camera_scale`` at the top)."""
+    data = dict(data)
+    if "agent_config" in data:
+        return data
+    agent_config = dict(read_defaults(data["agent"]))
+    agent_config.update(data.pop("agent_overrides", None) or {})
+    for key in ("lr", "clip_weights"):
+        value = data.pop(key, None)
+        if value is not None and key in agent_config:
+            agent_config[key] = value
+    env = dict(read_defaults("env"))
+    if "camera_scale" in data:
+        env["camera_scale"] = data.pop("camera_scale")
+    data["run_dir"] = data.get("run_dir") or ""
+    data["agent_config"], data["env"] = agent_config, env
+    return data
