@@ -125,11 +125,10 @@ class DemoDataset(Dataset):
 
 
 def _episode_length(path: str) -> int:
-    """Number of steps of an episode file, read from the small reward array only."""
-    import zipfile
+    """Number of steps of an episode file, read from its small arrays only (see check_episode_file)."""
+    from cliport.data.episode_io import EpisodeFileError, check_episode_file
 
     try:
-        with np.load(path, allow_pickle=False) as z:
-            return int(len(z["reward"]))
-    except (zipfile.BadZipFile, KeyError, ValueError, OSError, EOFError) as e:
-        raise DatasetError(f"corrupt episode file {path}: {e}") from e
+        return check_episode_file(path)
+    except EpisodeFileError as e:
+        raise DatasetError(f"{e}; re-running cliport-demos for this task and mode replaces it") from None
