@@ -28,7 +28,7 @@ _NAME = re.compile(re.escape(PREFIX) + r"(\d+)-[^/]+")
 
 log = logging.getLogger(__name__)
 
-_lock = threading.Lock()
+_lock = threading.RLock()  # re-entrant: the SIGTERM handler may run while the main thread holds it
 _root: str | None = None
 _owner_pid: int | None = None  # the process that created _root (a forked child inherits both)
 _finalisers_pid: int | None = None  # the process whose exit hooks are registered
@@ -37,7 +37,7 @@ _finalisers_pid: int | None = None  # the process whose exit hooks are registere
 def _reset_lock_in_child() -> None:
     # A fork taken while another thread held the lock would leave it held forever in the child.
     global _lock
-    _lock = threading.Lock()
+    _lock = threading.RLock()
 
 
 os.register_at_fork(after_in_child=_reset_lock_in_child)
@@ -94,12 +94,15 @@ def _cleanup() -> None:
 
 
 def _on_sigterm(signum: int, frame: FrameType | None) -> None:
-    if _finalisers_pid != os.getpid():
-        # A forked child that inherited the handler but owns no folder: die as by default.
-        signal.signal(signum, signal.SIG_DFL)
-        os.kill(os.getpid(), signum)
-        return
-    raise SystemExit(128 + signum)
+    import multiprocessing
+
+    if _finalisers_pid == os.getpid() and multiprocessing.parent_process() is None:
+        raise SystemExit(128 + signum)  # unwinds: finally blocks, context managers and atexit run
+    # A multiprocessing child (whose pool would report a SystemExit as a task's result), or a fork
+    # that inherited the handler: remove the folder if it is ours, then die by the signal as by default.
+    _cleanup()
+    signal.signal(signum, signal.SIG_DFL)
+    os.kill(os.getpid(), signum)
 
 
 def _install_finalisers() -> None:

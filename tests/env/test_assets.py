@@ -46,7 +46,22 @@ _POOL_SCRIPT = textwrap.dedent(
         time.sleep(0.3)
         return generate._ENV.asset_dir
 
-    if __name__ == "__main__":
+    def hold(queue):
+        generate.init_worker("place-red-in-green", "train", 0.5)
+        queue.put(generate._ENV.asset_dir)
+        time.sleep(60)
+
+    if __name__ == "__main__" and sys.argv[1] == "terminate":
+        ctx = mp.get_context("spawn")
+        queue = ctx.Queue()
+        worker = ctx.Process(target=hold, args=(queue,))
+        worker.start()
+        folder = queue.get(timeout=60)
+        worker.terminate()
+        worker.join(60)
+        assert worker.exitcode == -15, worker.exitcode  # still dies by the signal, as multiprocessing expects
+        print(folder, flush=True)
+    elif __name__ == "__main__":
         ctx = mp.get_context(sys.argv[1])
         init = ("place-red-in-green", "train", 0.5)
         with cf.ProcessPoolExecutor(2, mp_context=ctx, initializer=generate.init_worker, initargs=init) as pool:
@@ -125,7 +140,7 @@ def test_sigkill_leftover_is_swept_by_the_next_start(tmp_path: Path) -> None:
     assert _leftovers(tmp) == sorted([live.name, other.name])
 
 
-@pytest.mark.parametrize("method", ["spawn", "fork"])
+@pytest.mark.parametrize("method", ["spawn", "fork", "terminate"])
 def test_worker_pool_leaves_no_folder(tmp_path: Path, method: str) -> None:
     tmp, script = _script(tmp_path, _POOL_SCRIPT)
     start = time.monotonic()
