@@ -13,9 +13,9 @@ from typing import Any
 
 import cv2
 import numpy as np
-import pybullet as p
 
 from cliport.env import heightmap as hm
+from cliport.env.bullet import p
 from cliport.env.primitives import PickPlaceSettings, PushSettings
 from cliport.env.transforms import Pose, apply, invert, multiply, quat_to_yaw, yaw_to_quat
 

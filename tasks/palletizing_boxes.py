@@ -15,9 +15,9 @@ import math
 from typing import Any
 
 import numpy as np
-import pybullet as p
 
 from cliport.env import shapes
+from cliport.env.bullet import p
 from cliport.env.transforms import multiply, yaw_to_quat
 from cliport.tasks import register
 from cliport.tasks.base import GoalStep

@@ -5,9 +5,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import pybullet as p
 
 from cliport.env import shapes
+from cliport.env.bullet import p
 
 N_BEADS = 20
 BEAD_RADIUS = 0.005

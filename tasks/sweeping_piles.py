@@ -10,9 +10,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import pybullet as p
 
 from cliport.env import shapes
+from cliport.env.bullet import p
 from cliport.env.primitives import PushSettings
 from cliport.env.transforms import Pose, apply, at_height, invert, yaw_to_quat
 from cliport.tasks import register

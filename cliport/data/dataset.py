@@ -11,8 +11,7 @@ import torch
 from torch.utils.data import Dataset
 
 from cliport.data import augment
-from cliport.data.episode_io import EpisodeData, load_episode, read_meta
-from cliport.data.generate import dataset_dir, existing_seeds
+from cliport.data.episode_io import EpisodeData, dataset_dir, episode_path, existing_seeds, load_episode, read_meta
 from cliport.env import heightmap as hm
 from cliport.errors import UnknownNameError, UserError
 
@@ -68,7 +67,7 @@ class DemoDataset(Dataset):
                 seeds = [seeds[i] for i in sorted(pick)]
             elif not seeds:
                 raise DatasetError(f"{folder} holds no episodes")
-            self.files += [(name, os.path.join(folder, f"{s:06d}.npz")) for s in seeds]
+            self.files += [(name, episode_path(folder, s)) for s in seeds]
         self.index: list[tuple[int, int]] = []
         for e, (_, path) in enumerate(self.files):
             self.index += [(e, t) for t in range(_episode_length(path))]
@@ -123,11 +122,10 @@ class DemoDataset(Dataset):
 
 
 def _episode_length(path: str) -> int:
-    """Number of steps of an episode file, read from the small reward array only."""
-    import zipfile
+    """Number of steps of an episode file, read from its small arrays only (see check_episode_file)."""
+    from cliport.data.episode_io import EpisodeFileError, check_episode_file
 
     try:
-        with np.load(path, allow_pickle=False) as z:
-            return int(len(z["reward"]))
-    except (zipfile.BadZipFile, KeyError, ValueError, OSError, EOFError) as e:
-        raise DatasetError(f"corrupt episode file {path}: {e}") from e
+        return check_episode_file(path)
+    except EpisodeFileError as e:
+        raise DatasetError(f"{e}; re-running cliport-demos for this task and mode replaces it") from None

@@ -1,5 +1,6 @@
 """One compressed file per episode: what the agents consume, stored compactly and written atomically.
 
+Layout: ``DATA_DIR/<task>-<mode>/<seed:06d>.npz`` (:func:`dataset_dir`, :func:`episode_path`).
 File ``<seed:06d>.npz`` (numpy's zip container, deflate-compressed) with, for T actions:
 - ``color``  uint8   (T, 320, 160, 3)  fused top-down colour before each action
 - ``height`` uint16  (T, 320, 160)     height in units of 0.1 mm (lossless to 0.1 mm, max 6.5 m)
@@ -14,7 +15,9 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import zipfile
+import zlib
 from dataclasses import dataclass
 from typing import Any
 
@@ -22,11 +25,31 @@ import numpy as np
 
 from cliport.errors import UserError
 
+_EPISODE_FILE = re.compile(r"(\d{6})\.npz")
 HEIGHT_UNIT = 1e-4  # metres per stored height unit
+REQUIRED_ARRAYS = ("color", "height", "pose0", "pose1", "reward", "lang_goal", "meta")
+NOT_A_DEMO = "truncated or not a demo file"
+# What reading a damaged zip member can raise: bad CRC, bad deflate stream, bad .npy header, short read.
+_MEMBER_ERRORS = (zipfile.BadZipFile, zlib.error, ValueError, OSError, EOFError)
 
 
 class EpisodeFileError(UserError, ValueError):
     """A missing, truncated or otherwise unreadable episode file; the message names the path."""
+
+
+def dataset_dir(data_dir: str, task: str, mode: str) -> str:
+    """The folder of a task's episodes of one split."""
+    return os.path.join(data_dir, f"{task}-{mode}")
+
+
+def episode_path(folder: str, seed: int) -> str:
+    """The episode file of ``seed`` in a dataset folder."""
+    return os.path.join(folder, f"{seed:06d}.npz")
+
+
+def existing_seeds(folder: str) -> list[int]:
+    """Seeds of the finished episode files in a dataset folder, sorted."""
+    return sorted(int(m.group(1)) for f in os.listdir(folder) if (m := _EPISODE_FILE.fullmatch(f)))
 
 
 @dataclass
@@ -76,34 +99,80 @@ def save_episode(path: str, steps: list[dict[str, Any]], meta: dict[str, Any], r
     return os.path.getsize(path)
 
 
+def _open(path: str) -> np.lib.npyio.NpzFile:
+    """The episode's npz archive, with its members checked against :data:`REQUIRED_ARRAYS`."""
+    if not os.path.exists(path):
+        raise EpisodeFileError(f"episode file not found: {path}")
+    # numpy takes anything that is not a zip for a pickle and answers with advice to load it unsafely;
+    # a zip's central directory sits at its end, so a truncated episode fails this test too.
+    try:
+        is_zip = zipfile.is_zipfile(path)
+    except OSError as e:
+        raise EpisodeFileError(f"cannot read episode file {path}: {e.strerror or e}") from None
+    if not is_zip:
+        raise EpisodeFileError(f"corrupt episode file {path}: {NOT_A_DEMO}")
+    try:
+        z = np.load(path, allow_pickle=False)
+    except (*_MEMBER_ERRORS, KeyError):
+        raise EpisodeFileError(f"corrupt episode file {path}: {NOT_A_DEMO}") from None
+    missing = [k for k in REQUIRED_ARRAYS if k not in z.files]
+    if missing:
+        z.close()
+        raise EpisodeFileError(f"corrupt episode file {path}: {NOT_A_DEMO} (no {', '.join(missing)} array)")
+    return z
+
+
+def _read(z: np.lib.npyio.NpzFile, key: str, path: str) -> np.ndarray:
+    try:
+        return z[key]
+    except _MEMBER_ERRORS:
+        raise EpisodeFileError(f"corrupt episode file {path}: the {key!r} array is damaged") from None
+
+
+def _meta(z: np.lib.npyio.NpzFile, path: str) -> dict[str, Any]:
+    try:
+        meta = json.loads(str(_read(z, "meta", path)))
+    except json.JSONDecodeError:
+        meta = None
+    if not isinstance(meta, dict):
+        raise EpisodeFileError(f"corrupt episode file {path}: the 'meta' array is not a JSON object")
+    return meta
+
+
+def check_episode_file(path: str) -> int:
+    """Cheaply check an episode file and return its number of steps; EpisodeFileError if it is bad.
+
+    Reads the zip's central directory and the small ``reward`` and ``meta`` arrays, which catches a
+    missing, empty, truncated or foreign file. It does not decompress the large ``color``/``height``
+    arrays, so damage inside them (a flipped byte in the middle of an intact-length file) is only
+    found by :func:`load_episode`.
+    """
+    with _open(path) as z:
+        n_steps = len(_read(z, "reward", path))
+        _meta(z, path)
+    if n_steps == 0:
+        raise EpisodeFileError(f"corrupt episode file {path}: no steps")
+    return n_steps
+
+
 def read_meta(path: str) -> dict[str, Any]:
     """The ``meta`` record of an episode file alone (cheap: the images are not decompressed)."""
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            return json.loads(str(z["meta"]))
-    except FileNotFoundError as e:
-        raise EpisodeFileError(f"episode file not found: {path}") from e
-    except (zipfile.BadZipFile, KeyError, ValueError, OSError, EOFError) as e:
-        raise EpisodeFileError(f"corrupt episode file {path}: {e}") from e
+    with _open(path) as z:
+        return _meta(z, path)
 
 
 def load_episode(path: str) -> EpisodeData:
     """Read an episode file; raises EpisodeFileError naming the path if it is missing or corrupt."""
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            data = EpisodeData(
-                color=z["color"],
-                height=z["height"].astype(np.float32) * HEIGHT_UNIT,
-                pose0=z["pose0"],
-                pose1=z["pose1"],
-                reward=z["reward"],
-                lang_goal=[str(s) for s in z["lang_goal"]],
-                meta=json.loads(str(z["meta"])),
-            )
-    except FileNotFoundError as e:
-        raise EpisodeFileError(f"episode file not found: {path}") from e
-    except (zipfile.BadZipFile, KeyError, ValueError, OSError, EOFError) as e:
-        raise EpisodeFileError(f"corrupt episode file {path}: {e}") from e
+    with _open(path) as z:
+        data = EpisodeData(
+            color=_read(z, "color", path),
+            height=_read(z, "height", path).astype(np.float32) * HEIGHT_UNIT,
+            pose0=_read(z, "pose0", path),
+            pose1=_read(z, "pose1", path),
+            reward=_read(z, "reward", path),
+            lang_goal=[str(s) for s in _read(z, "lang_goal", path)],
+            meta=_meta(z, path),
+        )
     if not (len(data.color) == len(data.height) == len(data.pose0) == len(data.pose1) == len(data.lang_goal)):
         raise EpisodeFileError(f"corrupt episode file {path}: arrays have different lengths")
     if len(data) == 0:

@@ -14,7 +14,6 @@ import glob
 import json
 import multiprocessing as mp
 import os
-import re
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -22,7 +21,7 @@ from typing import Any
 from tqdm import tqdm
 
 from cliport import __version__
-from cliport.data.episode_io import save_episode
+from cliport.data.episode_io import dataset_dir, episode_path, existing_seeds, save_episode
 from cliport.data.seeds import episode_seeds
 from cliport.errors import ConfigError, UserError
 from cliport.utils.config import defaults as config_defaults
@@ -56,19 +55,6 @@ class DemoConfig:
 
 class GenerationError(UserError, RuntimeError):
     """Demonstration generation cannot go on (e.g. the oracle keeps failing)."""
-
-
-def dataset_dir(data_dir: str, task: str, mode: str) -> str:
-    return os.path.join(data_dir, f"{task}-{mode}")
-
-
-def episode_path(folder: str, seed: int) -> str:
-    return os.path.join(folder, f"{seed:06d}.npz")
-
-
-def existing_seeds(folder: str) -> list[int]:
-    """Seeds of the finished episode files in a dataset folder, sorted."""
-    return sorted(int(m.group(1)) for f in os.listdir(folder) if (m := re.fullmatch(r"(\d{6})\.npz", f)))
 
 
 # ---------------------------------------------------------------------- worker side
@@ -145,7 +131,23 @@ def generate(
         with open(failures_path) as f:
             known_failures = {int(k): v for k, v in json.load(f).items()}
 
-    done = set(existing_seeds(folder))
+    # A truncated or foreign episode file (an interrupted copy, a full disk) is deleted and its seed
+    # generated again; check_episode_file says which damage this cheap check cannot see.
+    import logging
+
+    from cliport.data.episode_io import EpisodeFileError, check_episode_file
+
+    done: set[int] = set()
+    removed_bad: set[int] = set()
+    for seed in existing_seeds(folder):
+        try:
+            check_episode_file(episode_path(folder, seed))
+        except EpisodeFileError as err:
+            logging.getLogger(__name__).warning("%s; deleting it to generate it again", err)
+            os.remove(episode_path(folder, seed))
+            removed_bad.add(seed)
+        else:
+            done.add(seed)
     meta = {"task": task, "mode": mode, "cliport_version": __version__, "camera_scale": config.camera_scale}
 
     def seed_stream():
@@ -157,7 +159,7 @@ def generate(
     stream = seed_stream()
     saved_before = 0
     new_failures: dict[int, float] = {}
-    n_saved, n_bytes, n_steps = 0, 0, 0
+    n_saved, n_bytes, n_steps, n_regenerated = 0, 0, 0, 0
     start = time.perf_counter()
     bar = tqdm(total=target, desc=f"{task}-{mode}", disable=not progress, unit="demo")
 
@@ -176,9 +178,11 @@ def generate(
         return None
 
     def record(result: dict[str, Any]) -> None:
-        nonlocal n_saved, n_bytes, n_steps
+        nonlocal n_saved, n_bytes, n_steps, n_regenerated
         if result["success"]:
             n_saved += 1
+            if result["seed"] in removed_bad:
+                n_regenerated += 1
             n_bytes += result["bytes"]
             n_steps += result["steps"]
             bar.update(1)
@@ -234,6 +238,8 @@ def generate(
         "target": target,
         "saved": n_saved,
         "skipped_existing": saved_before,
+        "corrupt_removed": sorted(removed_bad),
+        "regenerated": n_regenerated,
         "total_in_folder": len(existing_seeds(folder)),
         "failed_seeds": sorted(new_failures),
         "known_failed_seeds_skipped": len(known_failures),

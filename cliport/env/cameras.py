@@ -6,8 +6,8 @@ import math
 from dataclasses import dataclass, replace
 
 import numpy as np
-import pybullet as p
 
+from cliport.env.bullet import p
 from cliport.env.transforms import euler_to_quat, quat_to_matrix
 
 

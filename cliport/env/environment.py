@@ -6,16 +6,14 @@ import contextlib
 import importlib.util
 import logging
 import os
-import shutil
-import sys
-import tempfile
 from dataclasses import dataclass
 from typing import Any, Protocol
 
 import numpy as np
-import pybullet as p
 
-from cliport.env import cameras, heightmap, shapes
+from cliport.env import assets, cameras, heightmap, shapes
+from cliport.env.bullet import p
+from cliport.env.bullet import quiet_native_output as _quiet_native_output
 from cliport.env.grippers import Spatula, Suction
 from cliport.env.primitives import PickPlaceSettings, PushSettings, pick_place, push
 from cliport.env.robot import UR5
@@ -78,24 +76,6 @@ def _gpu_present() -> bool:
     return os.path.exists("/dev/nvidia0")
 
 
-@contextlib.contextmanager
-def _quiet_native_output():
-    """Silence C-level writes to stdout and stderr (the EGL plugin's banners) inside the block."""
-    sys.stdout.flush()
-    sys.stderr.flush()
-    saved = [os.dup(1), os.dup(2)]
-    devnull = os.open(os.devnull, os.O_WRONLY)
-    try:
-        os.dup2(devnull, 1)
-        os.dup2(devnull, 2)
-        yield
-    finally:
-        os.dup2(saved[0], 1)
-        os.dup2(saved[1], 2)
-        for fd in (*saved, devnull):
-            os.close(fd)
-
-
 class Environment:
     """PyBullet workcell with a UR5, three RGB-D cameras and an optional task.
 
@@ -113,7 +93,7 @@ class Environment:
         if self.config.camera_scale <= 0:
             raise ValueError(f"camera_scale must be positive, got {self.config.camera_scale}")
         self.client = p.connect(p.DIRECT)
-        self.asset_dir = tempfile.mkdtemp(prefix="cliport-assets-")
+        self.asset_dir = assets.new_asset_dir()
         self.renderer, self.renderer_name = self._choose_renderer(self.config.renderer)
         log.info("rendering with %s", self.renderer_name)
         self.camera_configs = [c.scaled(self.config.camera_scale) for c in cameras.realsense_d415()]
@@ -333,7 +313,7 @@ class Environment:
         if p.isConnected(self.client):
             with _quiet_native_output():
                 p.disconnect(self.client)
-        shutil.rmtree(self.asset_dir, ignore_errors=True)
+        assets.remove_asset_dir(self.asset_dir)
 
     def __enter__(self) -> Environment:
         return self

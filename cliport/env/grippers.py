@@ -2,8 +2,7 @@
 
 from __future__ import annotations
 
-import pybullet as p
-
+from cliport.env.bullet import p
 from cliport.env.transforms import invert, multiply
 
 

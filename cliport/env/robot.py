@@ -5,9 +5,9 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
-import pybullet as p
 
 from cliport.env import urdf
+from cliport.env.bullet import p
 from cliport.env.transforms import Pose
 
 JOINT_LIMIT = 2 * np.pi

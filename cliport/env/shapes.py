@@ -7,8 +7,8 @@ import math
 import os
 
 import numpy as np
-import pybullet as p
 
+from cliport.env.bullet import p
 from cliport.env.transforms import Pose
 
 Color = tuple[float, float, float]

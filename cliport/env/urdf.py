@@ -138,9 +138,19 @@ def ur5_urdf(end_effector: str = "suction") -> str:
 
 
 def write_urdf(text: str, name: str, directory: str | None = None) -> str:
-    """Write URDF text to ``directory`` (a fresh temp dir by default) and return the file path."""
-    directory = directory or tempfile.mkdtemp(prefix="cliport-urdf-")
+    """Write URDF text to ``directory`` and return the file path.
+
+    Without ``directory`` the file goes to a fresh subfolder of the process's asset folder, which is
+    removed when the process ends (see :mod:`cliport.env.assets`). The write is atomic, so a reader
+    never sees half a file.
+    """
+    if directory is None:
+        from cliport.env import assets
+
+        directory = assets.new_asset_dir("urdf-")
     path = os.path.join(directory, f"{name}.urdf")
-    with open(path, "w") as f:
+    fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{name}.", suffix=".tmp")
+    with os.fdopen(fd, "w") as f:
         f.write(text)
+    os.replace(tmp, path)
     return path

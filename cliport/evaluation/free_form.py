@@ -5,6 +5,7 @@ from __future__ import annotations
 import hashlib
 import os
 import re
+import sys
 from typing import Any
 
 from cliport.data.rollout import run_episode
@@ -30,7 +31,14 @@ def run_instruction(
     notes = []
     if not agent.uses_language:
         notes.append(f"{agent.name} ignores language: the instruction cannot change what it does")
-        print(f"note: {notes[0]}")
+    elif agent.clip is not None:
+        from cliport.models.clip_backbone import CONTEXT_LENGTH, instruction_token_count
+
+        n_tokens = instruction_token_count(lang)
+        if n_tokens > CONTEXT_LENGTH:
+            notes.append(f"the instruction has {n_tokens} CLIP tokens; CLIP reads the first {CONTEXT_LENGTH}")
+    for note in notes:
+        print(f"note: {note}", file=sys.stderr)
     os.makedirs(out_dir, exist_ok=True)
     stem = f"{task_name}-seed{seed}-{instruction_slug(lang)}"
     panels: list[str] = []

@@ -13,11 +13,16 @@ Weight sources (``clip_weights`` in the agent configs):
 
 from __future__ import annotations
 
+import contextlib
+import functools
 import logging
 import os
+import pickle
 import socket
 import zipfile
+from collections.abc import Iterator, Mapping
 from pathlib import Path
+from typing import Any
 
 import torch
 from torch import nn
@@ -31,9 +36,14 @@ TRUNK_CHANNELS = (64, 256, 512, 1024, 2048)
 CLIP_MEAN = (0.48145466, 0.4578275, 0.40821073)
 CLIP_STD = (0.26862954, 0.26130258, 0.27577711)
 RANDOM_SEED = 0
+# CLIP reads at most this many tokens of an instruction, start and end tokens included; the tokenizer
+# cuts the rest off without saying so.
+CONTEXT_LENGTH = 77
 _HUB_HOST = ("huggingface.co", 443)
+_RANDOM_INIT_WARNING = "No pretrained weights loaded for model"
 
 log = logging.getLogger(__name__)
+_warned_long_instructions: set[str] = set()
 
 
 class CLIPWeightsUnavailable(UserError, RuntimeError):
@@ -50,6 +60,41 @@ def _offline_help(source: str, reason: str) -> str:
         "with network;\n"
         "  * for tests and benchmarks only, set clip_weights = 'random' (seeded random initialisation)."
     )
+
+
+class _OpenCLIPLogFilter(logging.Filter):
+    """Drops open_clip's INFO records, and its random-initialisation warning where that was asked for.
+
+    open_clip (3.x) logs through the root logger (``logging.info(...)``), so a level on an
+    ``open_clip`` logger does not reach those records; this filter sits on the root logger instead.
+    """
+
+    def __init__(self, expect_random_init: bool) -> None:
+        super().__init__()
+        self.expect_random_init = expect_random_init
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        from_open_clip = record.name.startswith("open_clip") or f"{os.sep}open_clip{os.sep}" in record.pathname
+        if not from_open_clip:
+            return True
+        if record.levelno < logging.WARNING:
+            return False
+        return not (self.expect_random_init and record.getMessage().startswith(_RANDOM_INIT_WARNING))
+
+
+@contextlib.contextmanager
+def _quiet_open_clip(expect_random_init: bool = False) -> Iterator[None]:
+    """Keep open_clip's INFO lines (and, when the random init is intended, its warning about it) quiet."""
+    named = logging.getLogger("open_clip")
+    if named.level == logging.NOTSET:
+        named.setLevel(logging.WARNING)
+    root = logging.getLogger()
+    quiet = _OpenCLIPLogFilter(expect_random_init)
+    root.addFilter(quiet)
+    try:
+        yield
+    finally:
+        root.removeFilter(quiet)
 
 
 def _hub_reachable(timeout_s: float = 3.0) -> bool:
@@ -77,15 +122,63 @@ def _cached_openai_file() -> str | None:
     return None
 
 
+def _bad_file(path: Path, reason: str) -> CLIPWeightsUnavailable:
+    return CLIPWeightsUnavailable(f"Cannot load CLIP weights from {path}: {reason}")
+
+
+def _first_sentence(err: BaseException, limit: int = 120) -> str:
+    text = str(err).strip().split("\n")[0].split(". ")[0].rstrip(".")
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
 def _load_state_dict_file(path: Path) -> dict[str, torch.Tensor]:
+    """The tensors of a state-dict file; CLIPWeightsUnavailable naming the file if it is not one."""
     if path.suffix == ".safetensors":
+        from safetensors import SafetensorError
         from safetensors.torch import load_file
 
-        return load_file(str(path))
-    state = torch.load(path, map_location="cpu", weights_only=True)
-    if isinstance(state, dict) and "state_dict" in state:
+        try:
+            return load_file(str(path))
+        except (SafetensorError, OSError) as err:
+            raise _bad_file(path, f"not a valid safetensors file ({_first_sentence(err)})") from None
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError:
+        # torch's message advises weights_only=False, i.e. running the file's code; never pass that on.
+        if zipfile.is_zipfile(path):
+            reason = "it holds pickled Python objects besides tensors (a whole model?); save model.state_dict()"
+        else:
+            reason = "not a PyTorch state-dict file (random or foreign bytes)"
+        raise _bad_file(path, reason) from None
+    except EOFError:
+        raise _bad_file(path, "the file is empty or truncated") from None
+    except (RuntimeError, OSError, ValueError) as err:
+        raise _bad_file(path, f"truncated or corrupt checkpoint ({_first_sentence(err)})") from None
+    if isinstance(state, Mapping) and isinstance(state.get("state_dict"), Mapping):
         state = state["state_dict"]
+    if not isinstance(state, Mapping) or not all(
+        isinstance(k, str) and isinstance(v, torch.Tensor) for k, v in state.items()
+    ):
+        raise _bad_file(path, f"it holds a {type(state).__name__}, not a state dict of named tensors")
     return {k.removeprefix("module."): v for k, v in state.items()}
+
+
+def _check_architecture(path: Path, state: Mapping[str, torch.Tensor], expected: Mapping[str, torch.Tensor]) -> None:
+    """CLIPWeightsUnavailable with a short account if ``state`` is not a state dict of ``expected``'s model."""
+    missing = [k for k in expected if k not in state]
+    unexpected = [k for k in state if k not in expected]
+    mismatched = [k for k in expected if k in state and tuple(state[k].shape) != tuple(expected[k].shape)]
+    problems = []
+    if missing:
+        problems.append(f"{len(missing)} of its {len(expected)} tensors missing (e.g. {missing[0]})")
+    if unexpected:
+        problems.append(f"{len(unexpected)} unexpected (e.g. {unexpected[0]})")
+    if mismatched:
+        k = mismatched[0]
+        shapes = f"{tuple(state[k].shape)} instead of {tuple(expected[k].shape)}"
+        problems.append(f"{len(mismatched)} with other shapes (e.g. {k}: {shapes})")
+    if problems:
+        raise _bad_file(path, f"not a state dict of open_clip {MODEL_NAME}: {'; '.join(problems)}")
 
 
 def _is_torchscript(path: Path) -> bool:
@@ -120,10 +213,11 @@ def calibrate_batch_norm(model: nn.Module, n_images: int = 4, size: int = 128) -
 
 def build_clip_model(source: str) -> nn.Module:
     """Build the open_clip RN50 model with weights from `source` ("openai", a file path, or "random")."""
-    import open_clip
+    with _quiet_open_clip(expect_random_init=source == "random"):
+        import open_clip
 
     if source == "random":
-        with torch.random.fork_rng(devices=[]):
+        with torch.random.fork_rng(devices=[]), _quiet_open_clip(expect_random_init=True):
             torch.manual_seed(RANDOM_SEED)
             model = open_clip.create_model(MODEL_NAME, pretrained=None)
             calibrate_batch_norm(model)
@@ -131,22 +225,32 @@ def build_clip_model(source: str) -> nn.Module:
     if source == "openai":
         cached = _cached_openai_file()
         if cached is not None:
-            return open_clip.create_model(MODEL_NAME, pretrained=cached)
+            with _quiet_open_clip():
+                return open_clip.create_model(MODEL_NAME, pretrained=cached)
         if not _hub_reachable():
             raise CLIPWeightsUnavailable(
                 _offline_help(source, "the weights are not cached and the Hugging Face hub is unreachable.")
             )
         try:
-            return open_clip.create_model(MODEL_NAME, pretrained="openai")
+            with _quiet_open_clip():
+                return open_clip.create_model(MODEL_NAME, pretrained="openai")
         except Exception as err:  # open_clip raises bare RuntimeErrors for download failures
             raise CLIPWeightsUnavailable(_offline_help(source, str(err))) from err
     path = Path(source).expanduser()
     if not path.is_file():
         raise CLIPWeightsUnavailable(_offline_help(source, "it is neither 'openai', 'random' nor an existing file."))
     if path.suffix in (".pt", ".pth") and _is_torchscript(path):
-        return open_clip.load_openai_model(str(path), precision="fp32", device="cpu")
-    model = open_clip.create_model(MODEL_NAME, pretrained=None)
-    model.load_state_dict(_load_state_dict_file(path), strict=True)
+        try:
+            with _quiet_open_clip():
+                return open_clip.load_openai_model(str(path), precision="fp32", device="cpu")
+        except Exception as err:  # TorchScript and open_clip raise assorted errors for a broken archive
+            raise _bad_file(path, f"not a loadable OpenAI TorchScript RN50 ({_first_sentence(err)})") from None
+    state = _load_state_dict_file(path)
+    # The weights are loaded right below (strictly), so open_clip's "initialized randomly" is not true here.
+    with _quiet_open_clip(expect_random_init=True):
+        model = open_clip.create_model(MODEL_NAME, pretrained=None)
+    _check_architecture(path, state, model.state_dict())
+    model.load_state_dict(state, strict=True)
     return model
 
 
@@ -160,9 +264,7 @@ class FrozenCLIP(nn.Module):
         self.model.requires_grad_(False)
         self.model.eval()
         self._sentence_cache: dict[str, torch.Tensor] = {}
-        import open_clip
-
-        self._tokenizer = open_clip.get_tokenizer(MODEL_NAME)
+        self._tokenizer = _tokenizer()
         self.register_buffer("mean", torch.tensor(CLIP_MEAN).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor(CLIP_STD).view(1, 3, 1, 1), persistent=False)
 
@@ -188,6 +290,8 @@ class FrozenCLIP(nn.Module):
         device = self.mean.device
         missing = sorted({t for t in texts if t not in self._sentence_cache})
         if missing:
+            for text in missing:
+                _warn_if_truncated(text, _count_tokens(self._tokenizer, text))
             tokens = self._tokenizer(missing).to(device)
             feats = self.model.encode_text(tokens).float()
             for text, feat in zip(missing, feats, strict=True):
@@ -198,6 +302,34 @@ class FrozenCLIP(nn.Module):
     def _apply(self, fn, recurse: bool = True):  # type: ignore[no-untyped-def]
         self._sentence_cache.clear()
         return super()._apply(fn, recurse)
+
+
+@functools.cache
+def _tokenizer() -> Any:
+    with _quiet_open_clip():
+        import open_clip
+
+        return open_clip.get_tokenizer(MODEL_NAME)
+
+
+def _count_tokens(tokenizer: Any, text: str) -> int:
+    return len(tokenizer.encode(text)) + 2  # + start and end tokens
+
+
+def instruction_token_count(text: str) -> int:
+    """CLIP tokens of an instruction, start and end tokens included; CLIP reads :data:`CONTEXT_LENGTH`."""
+    return _count_tokens(_tokenizer(), text)
+
+
+def _warn_if_truncated(text: str, n_tokens: int) -> None:
+    if n_tokens > CONTEXT_LENGTH and text not in _warned_long_instructions:
+        _warned_long_instructions.add(text)
+        log.warning(
+            "instruction has %d CLIP tokens but CLIP reads only %d, the rest is ignored: %r",
+            n_tokens,
+            CONTEXT_LENGTH,
+            text,
+        )
 
 
 def load_clip(source: str) -> FrozenCLIP:

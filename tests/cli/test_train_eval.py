@@ -157,3 +157,60 @@ def test_free_form_instruction_writes_video_and_heatmaps(runs, tmp_path, capsys)
     assert os.path.getsize(result["video"]) > 1000 and result["video"].endswith(".gif")
     assert len(result["heatmaps"]) == result["actions"] >= 1
     assert all(os.path.getsize(p) > 1000 for p in result["heatmaps"])
+    other = "move the block " + "very " * 80 + "carefully"  # a second instruction on the same seed, too long
+    _run(eval_cli.main, [*args[:5], other, *args[6:], "--camera-scale", "0.5"])
+    captured = capsys.readouterr()
+    second = json.loads(captured.out)
+    assert second["video"] != result["video"] and not set(second["heatmaps"]) & set(result["heatmaps"])
+    assert os.path.exists(result["video"]) and "CLIP reads the first 77" in captured.err
+
+
+def test_a_run_that_died_before_its_first_save_starts_again(data_dir, tmp_path, capsys):
+    from cliport.train.config import TrainConfig
+    from cliport.utils.files import write_json
+
+    run_dir = str(tmp_path / "died")
+    args = _train_args(data_dir, run_dir, "transporter_only", steps=2, extra=["--val-episodes", "0"])
+    config = TrainConfig.build({"agent": "transporter_only", "task": TASK, "run_dir": run_dir})
+    write_json(RunDir(run_dir).config, config.to_dict())  # what a run killed before its first save leaves
+    _run(train_cli.main, args)
+    assert RunDir(run_dir).checkpoint_steps() == [2]
+    with pytest.raises(SystemExit) as stop:  # now it holds progress: a plain re-run must not overwrite it
+        _run(train_cli.main, args)
+    assert stop.value.code == 2 and "pass --resume" in capsys.readouterr().err
+
+
+def test_offline_default_clip_weights_fail_in_one_line(data_dir, tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("HF_HUB_OFFLINE", "1")
+    monkeypatch.setenv("HF_HOME", str(tmp_path / "empty-hf-home"))
+    args = _train_args(data_dir, str(tmp_path / "offline"), "two_stream")
+    args[args.index("--clip-weights") + 1] = "openai"
+    with pytest.raises(SystemExit) as stop:
+        _run(train_cli.main, args)
+    err = capsys.readouterr().err
+    assert stop.value.code == 2 and err.startswith("error: Cannot load CLIP weights 'openai'")
+    assert "Traceback" not in err
+
+
+def test_truncated_checkpoint_is_one_line(runs, tmp_path, capsys):
+    import shutil
+
+    run_dir = str(tmp_path / "copy")
+    shutil.copytree(runs["transporter_only"], run_dir)
+    path = RunDir(run_dir).checkpoint(5)
+    with open(path, "r+b") as f:
+        f.truncate(os.path.getsize(path) // 3)
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as stop:
+        _run(eval_cli.main, ["--run-dir", run_dir, "--checkpoint", "5", "--n-episodes", "1"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert stop.value.code == 2 and len(err) == 1 and "step-000005.pt" in err[0] and "weights_only" not in err[0]
+
+
+def test_bad_widths_are_rejected(data_dir, tmp_path, capsys):
+    for width in ("0", "-1"):
+        with pytest.raises(SystemExit) as stop:
+            _run(train_cli.main, _train_args(data_dir, str(tmp_path / f"w{width}"), "transporter_only",
+                                             extra=["--width", width]))  # fmt: skip
+        err = capsys.readouterr().err.strip().splitlines()
+        assert stop.value.code == 2 and err == [f"error: width must be > 0, got {float(width)}"]

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from cliport.cli import demos as demos_cli
-from cliport.data.episode_io import EpisodeFileError, load_episode
-from cliport.data.generate import DemoConfig, existing_seeds, generate
+from cliport.data.episode_io import EpisodeFileError, existing_seeds, load_episode
+from cliport.data.generate import DemoConfig, generate
 
 TASKS = ["place-red-in-green", "block-insertion"]
 
@@ -68,3 +68,21 @@ def test_cli_reports_bad_input(capsys):
         demos_cli.run_cli(lambda: demos_cli.main(["--task", "no-such-task", "--n", "1"]), (KeyError,))
     assert exit_info.value.code == 2
     assert "unknown task 'no-such-task'" in capsys.readouterr().err
+
+
+def test_rerun_regenerates_truncated_and_foreign_files(data_dir):
+    root, _ = data_dir
+    folder = os.path.join(root, "block-insertion-train")
+    seeds = existing_seeds(folder)
+    paths = [os.path.join(folder, f"{s:06d}.npz") for s in seeds]
+    with open(paths[0], "r+b") as f:
+        f.truncate(os.path.getsize(paths[0]) // 2)
+    with open(paths[1], "wb") as f:
+        f.write(np.random.default_rng(0).bytes(4096))
+    summary = generate(
+        "block-insertion", "train", 2, DemoConfig.defaults(data_dir=root, workers=1, camera_scale=0.5), progress=False
+    )
+    assert summary["corrupt_removed"] == seeds and summary["regenerated"] == 2 and summary["saved"] == 2
+    assert existing_seeds(folder) == seeds
+    for path, seed in zip(paths, seeds, strict=True):
+        assert load_episode(path).meta["seed"] == seed

@@ -1,4 +1,7 @@
+import logging
+import os
 import time
+import warnings
 from pathlib import Path
 
 import pytest
@@ -6,7 +9,14 @@ import torch
 from safetensors.torch import save_file
 
 from cliport.models import clip_backbone
-from cliport.models.clip_backbone import CLIPWeightsUnavailable, FrozenCLIP, build_clip_model, load_clip
+from cliport.models.clip_backbone import (
+    CONTEXT_LENGTH,
+    CLIPWeightsUnavailable,
+    FrozenCLIP,
+    build_clip_model,
+    instruction_token_count,
+    load_clip,
+)
 
 
 @pytest.fixture(scope="module")
@@ -94,3 +104,100 @@ def test_random_trunk_features_are_unit_scale(clip: FrozenCLIP) -> None:
     assert all(0.1 < s < 10 for s in scales), scales
     norms = [m for m in clip.model.visual.modules() if isinstance(m, torch.nn.BatchNorm2d)]
     assert all(m.momentum == 0.1 and not m.training for m in norms)
+
+
+def test_random_build_logs_and_warns_nothing(caplog: pytest.LogCaptureFixture) -> None:
+    with caplog.at_level(logging.DEBUG), warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        build_clip_model("random")
+    assert [r.getMessage() for r in caplog.records] == []
+    assert [str(w.message) for w in caught] == []
+
+
+def test_open_clip_warnings_still_pass_outside_the_random_case(caplog: pytest.LogCaptureFixture) -> None:
+    """The filter drops exactly the intended records: open_clip's own warning stays visible elsewhere."""
+    with caplog.at_level(logging.INFO), clip_backbone._quiet_open_clip(expect_random_init=False):
+        import open_clip
+
+        open_clip.create_model(clip_backbone.MODEL_NAME, pretrained=None)
+    messages = [r.getMessage() for r in caplog.records]
+    assert len(messages) == 1 and "initialized randomly" in messages[0]
+
+
+def _garbage(tmp_path: Path, kind: str, clip: FrozenCLIP) -> tuple[Path, str]:
+    """A bad weights file of the given kind and a phrase its error message must contain."""
+    if kind == "random-bytes":
+        path = tmp_path / "rn50.pt"
+        path.write_bytes(os.urandom(4096))
+        return path, "not a PyTorch state-dict file"
+    if kind == "truncated":
+        path = tmp_path / "rn50.pt"
+        torch.save({"w": torch.zeros(1000)}, path)
+        path.write_bytes(path.read_bytes()[:2000])
+        return path, "truncated or corrupt"
+    if kind == "empty":
+        path = tmp_path / "rn50.pth"
+        path.write_bytes(b"")
+        return path, "empty or truncated"
+    if kind == "fake-safetensors":
+        path = tmp_path / "rn50.safetensors"
+        path.write_bytes(os.urandom(4096))
+        return path, "not a valid safetensors file"
+    if kind == "pickled-module":
+        path = tmp_path / "rn50.pt"
+        torch.save(torch.nn.Linear(2, 2), path)
+        return path, "pickled Python objects"
+    if kind == "not-a-dict":
+        path = tmp_path / "rn50.pt"
+        torch.save([torch.zeros(2)], path)
+        return path, "holds a list"
+    if kind == "other-model":
+        path = tmp_path / "rn50.safetensors"
+        save_file(torch.nn.Linear(2, 2).state_dict(), str(path))
+        return path, "missing (e.g. positional_embedding)"
+    assert kind == "wrong-shape"
+    state = dict(clip.model.state_dict())
+    state["text_projection"] = torch.zeros(512, 512)
+    path = tmp_path / "rn50.pt"
+    torch.save(state, path)
+    return path, "text_projection: (512, 512) instead of (512, 1024)"
+
+
+@pytest.mark.parametrize(
+    "kind",
+    [
+        "random-bytes",
+        "truncated",
+        "empty",
+        "fake-safetensors",
+        "pickled-module",
+        "not-a-dict",
+        "other-model",
+        "wrong-shape",
+    ],
+)
+def test_bad_weights_file_is_one_clear_line(clip: FrozenCLIP, tmp_path: Path, kind: str) -> None:
+    path, reason = _garbage(tmp_path, kind, clip)
+    with pytest.raises(CLIPWeightsUnavailable) as err:
+        build_clip_model(str(path))
+    message = str(err.value)
+    assert str(path) in message and reason in message, message
+    assert "\n" not in message and "weights_only" not in message and len(message) < 300, message
+
+
+def test_instruction_token_count() -> None:
+    assert CONTEXT_LENGTH == 77
+    assert instruction_token_count("pack the box") == 5  # start, three words, end
+    assert instruction_token_count("red " * 80) == 82
+
+
+def test_long_instruction_warns_once_with_its_token_count(clip: FrozenCLIP, caplog: pytest.LogCaptureFixture) -> None:
+    long = "put the " + "very " * 80 + "red block in the green bowl"
+    short = "put the red block in the green bowl"
+    with caplog.at_level(logging.WARNING, logger=clip_backbone.__name__):
+        clip.sentence_features([long, short])
+        clip._sentence_cache.clear()  # encoding it again must not repeat the warning
+        clip.sentence_features([long])
+    warned = [r.getMessage() for r in caplog.records]
+    assert len(warned) == 1, warned
+    assert f"{instruction_token_count(long)} CLIP tokens" in warned[0] and long in warned[0]

@@ -1,0 +1,50 @@
+"""PyBullet, imported in one place with its build-time banner kept off the console.
+
+``import pybullet`` prints ``pybullet build time: ...`` from C on file descriptor 2 at every start of
+a process. Library modules import it from here (``from cliport.env.bullet import p``) so that the
+first import happens with the native stdout/stderr silenced.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import sys
+from collections.abc import Iterator
+from types import ModuleType
+
+
+@contextlib.contextmanager
+def quiet_native_output() -> Iterator[None]:
+    """Silence C-level writes to stdout and stderr (file descriptors 1 and 2) inside the block."""
+    for stream in (sys.stdout, sys.stderr):
+        if stream is not None:
+            stream.flush()
+    try:
+        saved = [os.dup(1), os.dup(2)]
+    except OSError:  # descriptors already closed (a daemon): nothing to silence
+        yield
+        return
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 1)
+        os.dup2(devnull, 2)
+        yield
+    finally:
+        os.dup2(saved[0], 1)
+        os.dup2(saved[1], 2)
+        for fd in (*saved, devnull):
+            os.close(fd)
+
+
+def _import_pybullet() -> ModuleType:
+    if "pybullet" in sys.modules:
+        return sys.modules["pybullet"]
+    with quiet_native_output():
+        import pybullet
+    return pybullet
+
+
+p = _import_pybullet()
+
+__all__ = ["p", "quiet_native_output"]
