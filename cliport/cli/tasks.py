@@ -2,13 +2,11 @@
 
 from __future__ import annotations
 
-import argparse
-
-from cliport.cli.common import run_cli
+from cliport.cli.common import OneLineParser, run_cli
 
 
 def main(argv: list[str] | None = None) -> None:
-    argparse.ArgumentParser(prog="cliport-tasks", description=__doc__.split(":", 1)[1].strip()).parse_args(argv)
+    OneLineParser(prog="cliport-tasks", description=__doc__.split(":", 1)[1].strip()).parse_args(argv)
     from cliport import tasks
 
     for name in tasks.names():
