@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 from collections import OrderedDict
 from typing import Any
@@ -10,7 +11,7 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from cliport.data import augment
+from cliport.data import augment as augment_ops
 from cliport.data.episode_io import EpisodeData, dataset_dir, episode_path, existing_seeds, load_episode, read_meta
 from cliport.env import heightmap as hm
 from cliport.errors import UnknownNameError, UserError
@@ -29,6 +30,8 @@ class DemoDataset(Dataset):
       pick and place poses (xyz + quaternion xyzw) in the frame of the augmented image, lang str, task str.
     Turning poses into training targets (pixels, rotation bins) is the agent's business.
     ``n_demos`` episodes per task are a subset chosen with ``seed`` (the same seed, the same subset).
+    ``rotation_aug`` is the standard deviation (degrees) of the augmentation's rotation; 0 keeps the
+    recorded orientation and only shifts the image.
     """
 
     def __init__(
@@ -40,6 +43,7 @@ class DemoDataset(Dataset):
         seed: int = 0,
         augment: bool = True,
         cache_episodes: int = 128,
+        rotation_aug: float = math.degrees(augment_ops.ANGLE_STD),
     ):
         from cliport import tasks
 
@@ -47,7 +51,10 @@ class DemoDataset(Dataset):
             names = tasks.resolve(task)
         except UnknownNameError as e:
             raise DatasetError(str(e)) from e
+        if not rotation_aug >= 0:
+            raise DatasetError(f"rotation_aug must be >= 0 degrees, got {rotation_aug}")
         self.augment = augment
+        self.rotation_std = math.radians(rotation_aug)
         self.cache_episodes = cache_episodes
         self.files: list[tuple[str, str]] = []  # (task, path)
         for name in names:
@@ -108,9 +115,9 @@ class DemoDataset(Dataset):
         pose0, pose1 = ep.pose0[t].copy(), ep.pose1[t].copy()
         if self.augment:
             pick, place = hm.xyz_to_pix(pose0[:3]), hm.xyz_to_pix(pose1[:3])
-            m = augment.sample_se2(self._generator(), height.shape, [pick, place])
-            color, height = augment.warp(color, m), augment.warp(height, m)
-            pose0, pose1 = augment.transform_pose(m, pose0), augment.transform_pose(m, pose1)
+            m = augment_ops.sample_se2(self._generator(), height.shape, [pick, place], angle_std=self.rotation_std)
+            color, height = augment_ops.warp(color, m), augment_ops.warp(height, m)
+            pose0, pose1 = augment_ops.transform_pose(m, pose0), augment_ops.transform_pose(m, pose1)
         return {
             "color": np.ascontiguousarray(color),
             "height": np.ascontiguousarray(height, dtype=np.float32),

@@ -13,13 +13,20 @@ from cliport.env.transforms import euler_to_quat, quat_to_matrix
 
 @dataclass(frozen=True)
 class CameraConfig:
-    """A pinhole camera: image size (rows, cols), 3x3 intrinsics, pose and depth range."""
+    """A pinhole camera: image size (rows, cols), 3x3 intrinsics, pose and depth range.
+
+    The pose is camera-to-world in the robot base frame (camera z forward, y down); ``zrange`` (near,
+    far) is the range of valid depth in metres; ``depth_scale`` is the metres per unit of an integer
+    depth image (e.g. 0.001 for millimetre PNGs), None for float depth in metres. The fields are also
+    the format of ``cameras.json`` for ``cliport-predict`` (``dataclasses.asdict`` writes it).
+    """
 
     image_size: tuple[int, int]
     intrinsics: tuple[float, ...]  # row-major 3x3
     position: tuple[float, float, float]
     rotation: tuple[float, float, float, float]  # quaternion xyzw, camera frame: z forward, y down
     zrange: tuple[float, float] = (0.01, 10.0)
+    depth_scale: float | None = None
 
     @property
     def K(self) -> np.ndarray:  # noqa: N802 - the usual name for intrinsics

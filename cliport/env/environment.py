@@ -276,16 +276,9 @@ class Environment:
     def observe(self, raw_images: bool | None = None) -> dict[str, Any]:
         """The fused top-down observation (and the raw camera images when asked)."""
         images = self.render_cameras()
-        heights, colors, seens = [], [], []
-        for cfg, img in zip(self.camera_configs, images, strict=True):
-            points = heightmap.pointcloud_from_depth(img["depth"], cfg.K)
-            points = heightmap.transform_points(points, cameras.camera_rotation(cfg), np.asarray(cfg.position))
-            h, c, s = heightmap.project_to_heightmap(points, img["color"], self.bounds, self.pixel_size)
-            heights.append(h)
-            colors.append(c)
-            seens.append(s)
-        color, height = heightmap.fuse_heightmaps(heights, colors, seens)
-        obs: dict[str, Any] = {"color": color, "height": height}
+        views = [(img["color"], img["depth"]) for img in images]
+        fused = heightmap.fuse_cameras(views, self.camera_configs, self.bounds, self.pixel_size)
+        obs: dict[str, Any] = {"color": fused.color, "height": fused.height}
         if self.config.raw_images if raw_images is None else raw_images:
             obs["cameras"] = images
         return obs

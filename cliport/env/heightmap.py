@@ -8,7 +8,12 @@ actions (``xyz_to_pix``) and executing them (``pix_to_xyz``) all agree to the pi
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from typing import NamedTuple, Protocol
+
 import numpy as np
+
+from cliport.env.transforms import quat_to_matrix
 
 # Workspace bounds [[x0, x1], [y0, y1], [z0, z1]] in metres and the heightmap pixel size.
 BOUNDS = np.array([[0.25, 0.75], [-0.5, 0.5], [0.0, 0.28]])
@@ -91,6 +96,70 @@ def fuse_heightmaps(
     count = np.maximum(np.sum(seen, axis=0), 1.0)
     color = np.round(total / count).astype(np.uint8)
     return color, height.astype(np.float32)
+
+
+class CameraModel(Protocol):
+    """What fusion needs of a camera (``cliport.env.cameras.CameraConfig`` is one)."""
+
+    @property
+    def K(self) -> np.ndarray: ...  # noqa: N802 - (3, 3) intrinsics
+
+    @property
+    def position(self) -> Sequence[float]: ...  # (3,) camera centre in the world (robot base) frame
+
+    @property
+    def rotation(self) -> Sequence[float]: ...  # (4,) camera-to-world quaternion xyzw, z forward, y down
+
+    @property
+    def zrange(self) -> Sequence[float]: ...  # (near, far) metres: depth outside is no measurement
+
+
+class FusedMap(NamedTuple):
+    """A top-down map fused from several cameras.
+
+    color: (rows, cols, 3) uint8 (0 where no camera saw the cell); height: (rows, cols) float32 metres
+    above ``z0`` (0 where unseen); cells_per_camera: how many cells each camera saw (0: nothing of the
+    workspace, e.g. a wrong pose or depth unit).
+    """
+
+    color: np.ndarray
+    height: np.ndarray
+    cells_per_camera: tuple[int, ...]
+
+
+def fuse_cameras(
+    images: Sequence[tuple[np.ndarray, np.ndarray]],
+    cameras: Sequence[CameraModel],
+    bounds: np.ndarray = BOUNDS,
+    pixel_size: float = PIXEL_SIZE,
+) -> FusedMap:
+    """Fuse RGB-D views into the top-down colour and height maps: the one fusion of the project.
+
+    Each camera's depth is back-projected with its intrinsics, moved to the world frame by its pose,
+    projected onto the grid (highest point wins a cell) and the cameras are fused (height = max, colour
+    = mean over the cameras that see the cell). Depth values that are not finite or outside the camera's
+    ``zrange`` (e.g. 0 = no reading on a real sensor) are dropped.
+
+    Args:
+        images: per camera (color (H, W, 3) uint8, depth (H, W) float metres along the optical axis).
+        cameras: per camera its model (intrinsics for (H, W), pose, zrange).
+        bounds: (3, 2) workspace bounds [[x0, x1], [y0, y1], [z0, z1]] in metres.
+        pixel_size: metres per heightmap cell.
+    """
+    if len(images) != len(cameras):
+        raise ValueError(f"{len(images)} images for {len(cameras)} cameras")
+    heights, colors, seens = [], [], []
+    for (color, depth), cam in zip(images, cameras, strict=True):
+        near, far = cam.zrange
+        valid = np.isfinite(depth) & (depth >= near) & (depth <= far)
+        points = pointcloud_from_depth(np.where(valid, depth, 0.0).astype(np.float32), cam.K)
+        points = transform_points(points, quat_to_matrix(cam.rotation), np.asarray(cam.position, dtype=np.float64))
+        h, c, s = project_to_heightmap(points[valid], color[valid], bounds, pixel_size)
+        heights.append(h)
+        colors.append(c)
+        seens.append(s)
+    fused_color, fused_height = fuse_heightmaps(heights, colors, seens)
+    return FusedMap(fused_color, fused_height, tuple(int(s.sum()) for s in seens))
 
 
 def pix_to_xyz(

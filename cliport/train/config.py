@@ -35,6 +35,9 @@ class TrainConfig:
         save_last_every: steps between rolling resume points (checkpoints/last.pt).
         log_every: steps between rows of metrics.csv.
         val_episodes: val episodes per checkpoint (0: no validation).
+        rotation_aug: standard deviation (degrees) of the random rotation of the SE(2) training augmentation
+            (the reference's 60 for every task); 0 turns rotation off (random shifts stay), e.g. for tasks
+            whose instructions name directions ("left", "forward") that a rotated image contradicts.
         agent_config: the agent's own settings (its config class; defaults in configs/<agent>.toml).
         env: workcell settings of the validation episodes (defaults in configs/env.toml).
     """
@@ -57,6 +60,8 @@ class TrainConfig:
     val_episodes: int
     agent_config: AgentConfig
     env: EnvConfig
+    # A default only so that config.json files of runs that predate the field load (they trained with 60).
+    rotation_aug: float = 60.0
 
     @classmethod
     def build(cls, overrides: Mapping[str, Any] | None = None, base: Mapping[str, Any] | None = None) -> TrainConfig:
@@ -99,6 +104,7 @@ class TrainConfig:
             "log_every": 1,
             "val_episodes": 0,
             "checkpoint_every": 0,
+            "rotation_aug": 0,
         }
         for key, low in minimum.items():
             if getattr(self, key) < low:

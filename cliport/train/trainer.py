@@ -163,7 +163,9 @@ def train(
     torch.manual_seed(config.seed * 1000 + rank)
 
     agent = make_agent(config.agent, config.agent_config).to(device)
-    dataset = DemoDataset(config.data_dir, config.task, "train", config.n_demos, seed=config.seed)
+    dataset = DemoDataset(
+        config.data_dir, config.task, "train", config.n_demos, seed=config.seed, rotation_aug=config.rotation_aug
+    )
     _check_demo_camera_scale(dataset, config)
     optimizer = agent.make_optimizer()
 

@@ -79,3 +79,41 @@ def test_clear_errors(tmp_path, make_synthetic_dataset):
         DemoDataset(str(tmp_path), "place-red-in-green")
     with pytest.raises(DatasetError, match="unknown task"):
         DemoDataset(str(tmp_path), "no-such-task")
+
+
+def test_rotation_aug_zero_keeps_the_recorded_yaw_and_only_shifts(tmp_path, make_synthetic_dataset):
+    make_synthetic_dataset(str(tmp_path))
+    plain = DemoDataset(str(tmp_path), "place-red-in-green", n_demos=3, augment=False)
+    still = DemoDataset(str(tmp_path), "place-red-in-green", n_demos=3, rotation_aug=0.0)
+    turned = DemoDataset(str(tmp_path), "place-red-in-green", n_demos=3)
+    shifted = 0
+    turns = []
+    for i in range(len(plain)):
+        ref, s, t = plain[i], still[i], turned[i]
+        for key in ("pose0", "pose1"):
+            assert quat_to_yaw(s[key][3:]) == pytest.approx(quat_to_yaw(ref[key][3:]), abs=1e-9)
+        turns.append(abs(quat_to_yaw(t["pose0"][3:]) - quat_to_yaw(ref["pose0"][3:])))
+        # The image is the recorded one moved by the pick pixel's integer offset, nothing else.
+        du, dv = np.subtract(hm.xyz_to_pix(s["pose0"][:3]), hm.xyz_to_pix(ref["pose0"][:3]))
+        assert np.subtract(hm.xyz_to_pix(s["pose1"][:3]), hm.xyz_to_pix(ref["pose1"][:3])).tolist() == [du, dv]
+        h, w = ref["height"].shape
+        src = ref["color"][max(0, -du) : h - max(0, du), max(0, -dv) : w - max(0, dv)]
+        dst = s["color"][max(0, du) : h + min(0, du), max(0, dv) : w + min(0, dv)]
+        assert np.array_equal(src, dst)
+        shifted += (du, dv) != (0, 0)
+    assert shifted >= len(plain) - 1  # shifts stay on
+    assert max(turns) > 0.1  # the default still rotates
+
+
+def test_rotation_aug_is_a_training_setting():
+    from cliport.errors import ConfigError
+    from cliport.train.config import TrainConfig
+
+    base = {"agent": "transporter_only", "task": "block-insertion"}
+    assert TrainConfig.build(base).rotation_aug == 60.0
+    assert TrainConfig.build({**base, "rotation_aug": 0.0}).rotation_aug == 0.0
+    with pytest.raises(ConfigError, match="rotation_aug"):
+        TrainConfig.build({**base, "rotation_aug": -5.0})
+    saved = TrainConfig.build(base).to_dict()
+    del saved["rotation_aug"]  # a run saved before the setting existed trained with 60
+    assert TrainConfig.from_saved(saved).rotation_aug == 60.0

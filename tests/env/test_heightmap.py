@@ -47,3 +47,37 @@ def test_pointcloud_backprojection():
     pts = hm.pointcloud_from_depth(depth, k)
     assert pts[240, 320] == pytest.approx([0.0, 0.0, 2.0])
     assert pts[240, 545] == pytest.approx([225 * 2.0 / 450, 0.0, 2.0])
+
+
+def _down_camera(position=(0.5, 0.0, 1.0), zrange=(0.01, 10.0)):
+    """A 60 x 80 camera looking straight down at (x, y) of its position."""
+    from cliport.env.cameras import CameraConfig
+    from cliport.env.transforms import euler_to_quat
+
+    k = (100.0, 0.0, 40.0, 0.0, 100.0, 30.0, 0.0, 0.0, 1.0)
+    return CameraConfig((60, 80), k, position, euler_to_quat(np.pi, 0.0, 0.0), zrange)
+
+
+def test_fuse_cameras_sees_a_plane_and_counts_cells_per_camera():
+    cam = _down_camera()
+    depth = np.full((60, 80), 0.97, np.float32)  # a plane 3 cm above the table
+    color = np.full((60, 80, 3), 200, np.uint8)
+    depth[:, :40] = 0.0  # no reading: dropped, not a point at the camera
+    depth[0, 79] = np.nan
+    away = _down_camera(position=(3.0, 0.0, 1.0))  # sees only points outside the bounds
+    fused = hm.fuse_cameras([(color, depth), (color, depth)], [cam, away])
+    seen = fused.height > 0
+    assert fused.cells_per_camera[0] > 0 and fused.cells_per_camera[1] == 0
+    assert seen.sum() == fused.cells_per_camera[0]
+    assert np.allclose(fused.height[seen], 0.03, atol=1e-5)
+    assert np.all(fused.color[seen] == 200) and np.all(fused.color[~seen] == 0)
+    # Half of the image had no reading: about half of the cells are missing.
+    full = hm.fuse_cameras([(color, np.full((60, 80), 0.97, np.float32))], [cam])
+    assert fused.cells_per_camera[0] < 0.6 * full.cells_per_camera[0]
+
+
+def test_fuse_cameras_drops_depth_outside_zrange():
+    depth = np.full((60, 80), 0.97, np.float32)
+    color = np.zeros((60, 80, 3), np.uint8)
+    fused = hm.fuse_cameras([(color, depth)], [_down_camera(zrange=(0.01, 0.9))])
+    assert fused.cells_per_camera == (0,) and not fused.height.any()
