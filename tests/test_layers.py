@@ -16,7 +16,8 @@ FORBIDDEN = {
     "agents": ["cliport.data", "cliport.train", "cliport.evaluation", "cliport.cli", "cliport.study"],
     "data": ["cliport.agents", "cliport.models", "cliport.train", "cliport.evaluation", "cliport.cli"],
     "train": ["cliport.evaluation", "cliport.cli", "cliport.study"],
-    "evaluation": ["cliport.train", "cliport.cli", "cliport.study"],
+    "evaluation": ["cliport.train", "cliport.cli", "cliport.study", "cliport.deploy"],
+    "deploy": ["cliport.train", "cliport.cli", "cliport.study", "cliport.data"],
 }  # fmt: skip
 
 

@@ -8,7 +8,7 @@ import os
 import sys
 
 from cliport.cli.common import OneLineParser, run_cli
-from cliport.errors import CheckpointError, ConfigError, RunDirError
+from cliport.errors import CheckpointError, ConfigError
 
 
 def _parser() -> tuple[argparse.ArgumentParser, list[str]]:
@@ -35,27 +35,10 @@ def _parser() -> tuple[argparse.ArgumentParser, list[str]]:
 
 def checkpoints_to_run(run_dir: str, which: str) -> list[int | str]:
     """The checkpoints ``--checkpoint`` names: best (from val.json), last, all, or one saved step."""
-    from cliport.utils.files import read_json
     from cliport.utils.run_dir import RunDir
 
     run = RunDir(run_dir)
-    steps = run.checkpoint_steps()
-    if not steps and not os.path.exists(run.checkpoint("last")):
-        raise RunDirError(f"no checkpoints in {run_dir}/checkpoints")
-    if which == "all":
-        return list(steps)
-    if which == "last":
-        return ["last"]
-    if which == "best":
-        if not os.path.exists(run.val):
-            raise RunDirError(
-                f"no validation results in {run_dir} (val.json) to pick the best checkpoint: use "
-                "--checkpoint last|STEP, or train with --val-episodes > 0"
-            )
-        return [int(read_json(run.val)["best_step"])]
-    if not which.isdigit() or int(which) not in steps:
-        raise ConfigError(f"--checkpoint must be best, last, all or one of the saved steps {steps}, got {which!r}")
-    return [int(which)]
+    return run.resolve(which, run.best_step() if which == "best" else None)
 
 
 def main(argv: list[str] | None = None) -> None:

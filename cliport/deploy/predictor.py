@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -13,33 +12,17 @@ import numpy as np
 from cliport.deploy.scene import SceneError, check_views, depth_in_metres, fuse_scene, parse_camera
 from cliport.env import heightmap as hm
 from cliport.env.cameras import CameraConfig
-from cliport.errors import ConfigError, RunDirError
+from cliport.errors import ConfigError
 
 
 def resolve_checkpoint(run_dir: str, which: str = "best") -> tuple[str, int | str]:
     """The checkpoint file of a run that ``which`` names (best by val.json, last, or a saved step) and its
     step (or "last")."""
-    from cliport.utils.files import read_json
     from cliport.utils.run_dir import RunDir
 
     run = RunDir(run_dir)
-    if not os.path.isdir(run_dir):
-        raise RunDirError(f"run folder not found: {run_dir}")
-    steps = run.checkpoint_steps()
-    if not steps and not os.path.exists(run.checkpoint("last")):
-        raise RunDirError(f"no checkpoints in {run_dir}/checkpoints")
-    if which == "last":
-        return run.checkpoint("last"), "last"
-    if which == "best":
-        if not os.path.exists(run.val):
-            raise RunDirError(
-                f"no validation results in {run_dir} (val.json) to pick the best checkpoint: use --checkpoint last|STEP"
-            )
-        step = int(read_json(run.val)["best_step"])
-        return run.checkpoint(step), step
-    if not which.isdigit() or int(which) not in steps:
-        raise ConfigError(f"--checkpoint must be best, last or one of the saved steps {steps}, got {which!r}")
-    return run.checkpoint(int(which)), int(which)
+    (step,) = run.resolve(which, run.best_step() if which == "best" else None, allow_all=False)
+    return run.checkpoint(step), step
 
 
 def check_bounds(bounds: Sequence[float] | np.ndarray | None) -> np.ndarray:

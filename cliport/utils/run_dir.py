@@ -64,6 +64,41 @@ class RunDir:
             return []
         return sorted(int(m.group(1)) for f in os.listdir(folder) if (m := _STEP_FILE.fullmatch(f)))
 
+    def resolve(self, which: str, val_step: int | None = None, allow_all: bool = True) -> list[int | str]:
+        """The checkpoints ``which`` names: ``"best"`` (``val_step``, the step val.json chose), ``"last"``,
+        ``"all"`` (every scheduled one, where allowed) or one saved step; RunDirError / ConfigError naming
+        the problem."""
+        from cliport.errors import ConfigError, RunDirError
+
+        if not os.path.isdir(self.root):
+            raise RunDirError(f"run folder not found: {self.root}")
+        steps = self.checkpoint_steps()
+        if not steps and not os.path.exists(self.checkpoint(LAST)):
+            raise RunDirError(f"no checkpoints in {os.path.join(self.root, CHECKPOINTS)}")
+        if which == "all" and allow_all:
+            return list(steps)
+        if which == LAST:
+            return [LAST]
+        if which == "best":
+            if val_step is None:
+                raise RunDirError(
+                    f"no validation results in {self.root} ({VAL}) to pick the best checkpoint: use "
+                    "--checkpoint last|STEP, or train with --val-episodes > 0"
+                )
+            return [val_step]
+        if not which.isdigit() or int(which) not in steps:
+            choices = "best, last, all" if allow_all else "best, last"
+            raise ConfigError(f"--checkpoint must be {choices} or one of the saved steps {steps}, got {which!r}")
+        return [int(which)]
+
+    def best_step(self) -> int | None:
+        """The step val.json chose, or None without validation results."""
+        if not os.path.exists(self.val):
+            return None
+        from cliport.utils.files import read_json
+
+        return int(read_json(self.val)["best_step"])
+
     def is_run(self) -> bool:
         """Whether the folder holds a run (its resolved config)."""
         return os.path.isfile(self.config)
