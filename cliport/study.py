@@ -42,6 +42,8 @@ class StudyConfig:
         agent_config: agent settings (e.g. {"width": 0.25, "clip_weights": "random"}); each run takes the keys
             its agent has, and a key no studied agent has is an error.
         checkpoint_steps: checkpoint steps (None: configs/train.toml's).
+        eval_workers: simulator processes for validation and test episodes (None: the usable CPU cores,
+            at most 8 and at most the episodes of one checkpoint).
     """
 
     agents: list[str]
@@ -59,6 +61,7 @@ class StudyConfig:
     demo_workers: int = 1
     agent_config: dict[str, Any] = dataclasses.field(default_factory=dict)
     checkpoint_steps: list[int] | None = None
+    eval_workers: int | None = None
 
     def train_config(self, agent: str, n_demos: int) -> TrainConfig:
         """The train config of the (agent, n_demos) run."""
@@ -91,12 +94,17 @@ def run_study(config: StudyConfig, progress: bool = True) -> dict[str, Any]:
     """Run (or resume) every part of the study and write results.json, table.md and the plot."""
     from cliport.agents import load_agent
     from cliport.data.generate import DemoConfig, generate
+    from cliport.evaluation.engine import resolve_workers
     from cliport.evaluation.evaluate import evaluate
     from cliport.evaluation.validation import SimulatorValidator, validate_run
     from cliport.train.trainer import train
     from cliport.utils.device import resolve_device
 
     train_configs = {(a, n): config.train_config(a, n) for a in config.agents for n in config.n_demos}
+    test_workers = resolve_workers(config.eval_workers, config.test_episodes, "--eval-workers")
+    val_workers = None
+    if config.val_episodes > 0:
+        val_workers = resolve_workers(config.eval_workers, config.val_episodes, "--eval-workers")
     os.makedirs(config.out, exist_ok=True)
     write_json(os.path.join(config.out, "study_config.json"), dataclasses.asdict(config))
     demo_config = DemoConfig.defaults(
@@ -112,17 +120,27 @@ def run_study(config: StudyConfig, progress: bool = True) -> dict[str, Any]:
             validator = None
             if validate:
                 validator = SimulatorValidator(
-                    run.root, config.task, config.val_episodes, config.camera_scale, device, progress=progress
+                    run.root, config.task, config.val_episodes, config.camera_scale, device, None, progress, val_workers
                 )
             train(train_config, resume=run.is_run(), progress=progress, validator=validator)
         elif validate:
-            validate_run(run.root, config.task, config.val_episodes, config.camera_scale, device, progress=progress)
+            validate_run(
+                run.root, config.task, config.val_episodes, config.camera_scale, device, None, progress, val_workers
+            )
         test: dict[str, float] = {}
         for step in run.checkpoint_steps():
             path = os.path.join(run.eval_dir, f"{config.task}-test-{step}.json")
             if not os.path.exists(path):
                 agent = load_agent(run.checkpoint(step), device)
-                result = evaluate(agent, config.task, "test", config.test_episodes, config.camera_scale, progress)
+                result = evaluate(
+                    agent,
+                    config.task,
+                    "test",
+                    config.test_episodes,
+                    config.camera_scale,
+                    progress,
+                    workers=test_workers,
+                )
                 result.update(checkpoint=step, agent=agent_name, weight_sources=agent.weight_source_values())
                 write_json(path, result)
             test[str(step)] = read_json(path)["mean_score"]

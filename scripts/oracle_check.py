@@ -3,7 +3,8 @@
 Usage: python scripts/oracle_check.py --task place-red-in-green --episodes 100 [--mode train] [--workers 2]
        python scripts/oracle_check.py --task towers-of-hanoi --seeds 14 28   (re-run chosen seeds)
        python scripts/oracle_check.py --task palletizing-boxes --episodes 100 --record-dir docs/oracle
-Uses the same rollout code as demonstration generation (one environment per worker process).
+Episodes run in the evaluation engine (``cliport.evaluation.engine``): the oracle inside each worker
+process, one environment per worker, the same rollout loop as demonstration generation.
 Success = total reward > 0.99. A task group name (e.g. multi-ravens) prints one line per task.
 
 With ``--record-dir DIR`` every finished seed is appended to ``DIR/TASK.jsonl`` as one JSON line the
@@ -17,20 +18,18 @@ start a new file (or re-run the seeds in question with ``--seeds``, which always
 from __future__ import annotations
 
 import argparse
-import concurrent.futures as cf
 import json
-import multiprocessing as mp
 import os
 import statistics
 import subprocess
 import sys
 from collections.abc import Iterator
 
-from tqdm import tqdm
-
 from cliport import __version__, tasks
-from cliport.data import generate
 from cliport.data.seeds import episode_seeds
+from cliport.env.environment import EnvConfig
+from cliport.errors import ConfigError
+from cliport.evaluation.engine import ORACLE, EvalEngine, resolve_workers
 
 
 def _commit() -> str | None:
@@ -75,7 +74,7 @@ def check(
     mode: str = "train",
     camera_scale: float = 1.0,
     progress: bool = True,
-    workers: int = 1,
+    workers: int | None = 1,
     seeds: list[int] | None = None,
     record: str | None = None,
 ) -> dict:
@@ -83,6 +82,8 @@ def check(
 
     With ``record``, results are appended to that JSON-lines file as they finish and protocol seeds
     already recorded there are taken from it instead of being run (chosen ``seeds`` always run).
+    The episodes run in the evaluation engine with ``workers`` simulators (None: one per usable core,
+    at most one per seed to run).
     """
     chosen = seeds is not None
     seeds = seeds if seeds is not None else episode_seeds(mode, episodes)
@@ -105,31 +106,28 @@ def check(
     meta = {"task": task_name, "mode": mode, "camera_scale": camera_scale, "cliport_version": __version__}
     if sink is not None:
         meta["commit"] = _commit()
-    init = (task_name, mode, camera_scale)
-    bar = tqdm(total=len(todo), desc=task_name, disable=not progress, leave=False)
+    unwritten = list(todo)  # records are appended in seed order, each once every earlier seed has finished
 
-    def finished(result: dict) -> None:
-        done[result["seed"]] = result
-        if sink is not None:
+    def finished(row: dict) -> None:
+        done[row["seed"]] = {
+            "seed": row["seed"],
+            "success": row["total_reward"] > 0.99,
+            "total_reward": row["total_reward"],
+            "seconds": row["seconds"],
+        }
+        while sink is not None and unwritten and unwritten[0] in done:
+            result = done[unwritten.pop(0)]
             sink.write(json.dumps({**meta, **result, "total_reward": round(result["total_reward"], 4)}) + "\n")
             sink.flush()
             os.fsync(sink.fileno())
-        bar.update(1)
 
     try:
-        if workers == 1:
-            generate.init_worker(*init)
-            for seed in todo:
-                finished(generate.check_seed(seed))
-        elif todo:
-            ctx = mp.get_context("spawn")
-            with cf.ProcessPoolExecutor(
-                workers, mp_context=ctx, initializer=generate.init_worker, initargs=init
-            ) as pool:
-                for result in pool.map(generate.check_seed, todo):
-                    finished(result)
+        if todo:
+            n_workers = resolve_workers(None if workers is None else min(workers, len(todo)), len(todo))
+            config = EnvConfig.defaults(camera_scale=camera_scale)
+            with EvalEngine(task_name, mode, config, n_workers, progress, task_name) as engine:
+                engine.run(ORACLE, todo, on_result=finished)
     finally:
-        bar.close()
         if sink is not None:
             sink.close()
     results = [done[s] for s in seeds]
@@ -154,13 +152,19 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, nargs="+", help="run these seeds instead")
     parser.add_argument("--mode", default="train", choices=["train", "val", "test"])
     parser.add_argument("--camera-scale", type=float, default=1.0)
-    parser.add_argument("--workers", type=int, default=1, help="worker processes (one simulator each)")
+    parser.add_argument(
+        "--workers", type=int, help="worker processes (one simulator each); default: the usable cores, at most 8"
+    )
     parser.add_argument(
         "--record-dir", metavar="DIR", help="append per-seed results to DIR/TASK.jsonl and skip seeds already there"
     )
     args = parser.parse_args()
-    if args.episodes < 1 or args.workers < 1:
-        sys.exit("error: --episodes and --workers must be >= 1")
+    if args.episodes < 1:
+        sys.exit("error: --episodes must be >= 1")
+    try:
+        resolve_workers(args.workers, len(args.seeds) if args.seeds else args.episodes)
+    except ConfigError as e:
+        sys.exit(f"error: {e}")
     try:
         names = tasks.resolve(args.task)
         tasks.make(names[0], args.mode)

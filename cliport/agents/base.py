@@ -188,6 +188,12 @@ class PickPlaceAgent(nn.Module):
             "place_heatmap": place_prob.amax(dim=0).cpu().numpy().astype(np.float32),
         }
 
+    def act_batch(
+        self, observations: list[dict[str, np.ndarray]], instructions: list[str | None]
+    ) -> list[dict[str, Any]]:
+        """What :meth:`act` returns, for each (observation, instruction) pair (stand-in: a loop over act)."""
+        return [self.act(obs, instruction) for obs, instruction in zip(observations, instructions, strict=True)]
+
     def _frozen_prefixes(self) -> list[str]:
         modules = self.named_modules(remove_duplicate=False)  # the shared CLIP sits under several names
         return [name + "." for name, module in modules if isinstance(module, FrozenCLIP)]

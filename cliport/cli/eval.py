@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import sys
@@ -47,6 +48,8 @@ def main(argv: list[str] | None = None) -> None:
     from cliport import tasks
     from cliport.agents import load_agent
     from cliport.data.seeds import episode_seeds
+    from cliport.env.environment import EnvConfig
+    from cliport.evaluation.engine import EvalEngine, resolve_workers
     from cliport.evaluation.evaluate import EvalConfig, evaluate
     from cliport.train.trainer import load_run_config
     from cliport.utils.config import given_flags, load
@@ -61,6 +64,7 @@ def main(argv: list[str] | None = None) -> None:
         raise ConfigError(f"--n-episodes must be >= 1, got {config.n_episodes}")
     if config.mode not in ("val", "test"):
         raise ConfigError(f"--mode must be val or test, got {config.mode!r}")
+    workers = resolve_workers(config.workers, 1 if args.lang is not None else config.n_episodes)
     run_config = load_run_config(args.run_dir)
     run = RunDir(args.run_dir)
     camera_scale = config.camera_scale or run_config.env.camera_scale
@@ -74,41 +78,49 @@ def main(argv: list[str] | None = None) -> None:
     out = args.out or run.eval_dir
     device = resolve_device(config.device)
     weights = {"clip_weights": args.clip_weights} if args.clip_weights else None
-    for which in checkpoints_to_run(args.run_dir, config.checkpoint):
-        path = run.checkpoint(which)
-        agent = load_agent(path, device=device, weights=weights)
-        if args.agent is not None and agent.name != args.agent:
-            raise CheckpointError(f"{path} is a checkpoint of agent {agent.name!r}, not {args.agent!r}")
-        if args.lang is not None:
-            from cliport.evaluation.free_form import run_instruction
+    engines: dict[str, EvalEngine] = {}  # one per task, its workers kept across checkpoints (--checkpoint all)
+    env_config = EnvConfig.defaults(camera_scale=camera_scale)
+    with contextlib.ExitStack() as stack:
+        for which in checkpoints_to_run(args.run_dir, config.checkpoint):
+            path = run.checkpoint(which)
+            agent = load_agent(path, device=device, weights=weights)
+            if args.agent is not None and agent.name != args.agent:
+                raise CheckpointError(f"{path} is a checkpoint of agent {agent.name!r}, not {args.agent!r}")
+            if args.lang is not None:
+                from cliport.evaluation.free_form import run_instruction
 
-            seed = args.seed if args.seed is not None else episode_seeds(config.mode, 1)[0]
-            result = run_instruction(agent, names[0], config.mode, seed, args.lang, out, camera_scale)
-            print(json.dumps(result, indent=2))
-            return
-        for name in names:
-            video_dir = os.path.join(out, "videos") if args.video else None
-            result = evaluate(
-                agent,
-                name,
-                config.mode,
-                config.n_episodes,
-                camera_scale,
-                not args.no_progress,
-                video_dir,
-                config.video_fps,
-            )
-            result.update(
-                checkpoint=which,
-                checkpoint_file=path,
-                agent=agent.name,
-                clip_weights=agent.clip_source(),
-                weight_sources=agent.weight_source_values(),
-                run_dir=args.run_dir,
-            )
-            write_json(os.path.join(out, f"{name}-{config.mode}-{which}.json"), result)
-            summary = {k: v for k, v in result.items() if k != "episodes"}
-            print(json.dumps(summary))
+                seed = args.seed if args.seed is not None else episode_seeds(config.mode, 1)[0]
+                result = run_instruction(agent, names[0], config.mode, seed, args.lang, out, camera_scale)
+                print(json.dumps(result, indent=2))
+                return
+            for name in names:
+                if name not in engines:
+                    engine = EvalEngine(name, config.mode, env_config, workers, not args.no_progress)
+                    engines[name] = stack.enter_context(engine)
+                for other, engine in engines.items():
+                    if other != name:
+                        engine.close()  # a group: one task's workers at a time (restarted when needed)
+                video_dir = os.path.join(out, "videos") if args.video else None
+                result = evaluate(
+                    agent,
+                    name,
+                    config.mode,
+                    config.n_episodes,
+                    video_dir=video_dir,
+                    video_fps=config.video_fps,
+                    engine=engines[name],
+                )
+                result.update(
+                    checkpoint=which,
+                    checkpoint_file=path,
+                    agent=agent.name,
+                    clip_weights=agent.clip_source(),
+                    weight_sources=agent.weight_source_values(),
+                    run_dir=args.run_dir,
+                )
+                write_json(os.path.join(out, f"{name}-{config.mode}-{which}.json"), result)
+                summary = {k: v for k, v in result.items() if k != "episodes"}
+                print(json.dumps(summary))
 
 
 def entry() -> None:

@@ -3,16 +3,13 @@
 from __future__ import annotations
 
 import math
-import os
 import statistics
 from dataclasses import dataclass
 from typing import Any
 
-from tqdm import tqdm
-
-from cliport.data.rollout import run_episode
 from cliport.data.seeds import episode_seeds
-from cliport.env.environment import EnvConfig, Environment
+from cliport.env.environment import EnvConfig
+from cliport.evaluation.engine import EvalEngine, resolve_workers
 
 
 @dataclass
@@ -26,6 +23,8 @@ class EvalConfig:
         device: auto (CUDA when available), cpu, cuda, ...
         camera_scale: camera resolution of the episodes; unset = the run's (what its demos were rendered at).
         video_fps: frames per second of the --video GIFs.
+        workers: simulator processes stepping episodes in parallel (the agent acts on all of them in one
+            batch in the main process); unset = the usable CPU cores, at most 8 and at most n_episodes.
     """
 
     mode: str
@@ -34,6 +33,7 @@ class EvalConfig:
     device: str
     video_fps: int
     camera_scale: float | None = None
+    workers: int | None = None
 
 
 def confidence_interval(scores: list[float]) -> tuple[float, float]:
@@ -68,35 +68,15 @@ def agent_policy(agent: Any, lang: str | None = None, on_act=None):
     return act
 
 
-def evaluate(
-    agent: Any,
-    task_name: str,
-    mode: str,
-    n_episodes: int,
-    camera_scale: float = 1.0,
-    progress: bool = True,
-    video_dir: str | None = None,
-    video_fps: int = 20,
-) -> dict[str, Any]:
-    """Episodes on the first ``n_episodes`` seeds of ``mode``; returns per-episode and summary scores."""
-    from cliport import tasks
-    from cliport.evaluation.visualize import save_video
-
-    task = tasks.make(task_name, mode)
+def summarise(task_name: str, mode: str, rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """The evaluation result of per-episode ``rows`` (``seed``, ``total_reward``, ``actions``[, ``video``]):
+    mean score with its 95% interval, success rate with its Wilson interval, and the rows."""
     episodes = []
-    with Environment(EnvConfig.defaults(camera_scale=camera_scale), task=task) as env:
-        policy = agent_policy(agent)
-        for seed in tqdm(
-            episode_seeds(mode, n_episodes), desc=f"eval {task_name}-{mode}", disable=not progress, leave=False
-        ):
-            if video_dir is not None:
-                env.start_recording()
-            episode = run_episode(env, seed, policy)
-            row = {"seed": seed, "total_reward": round(episode.total_reward, 4), "actions": episode.n_actions}
-            if video_dir is not None:
-                row["video"] = os.path.join(video_dir, f"{task_name}-{mode}-{seed:06d}.gif")
-                save_video(row["video"], env.stop_recording(), video_fps)
-            episodes.append(row)
+    for r in rows:
+        row = {"seed": r["seed"], "total_reward": round(r["total_reward"], 4), "actions": r["actions"]}
+        if "video" in r:
+            row["video"] = r["video"]
+        episodes.append(row)
     scores = [100 * e["total_reward"] for e in episodes]
     low, high = confidence_interval(scores)
     successes = sum(e["total_reward"] > 0.99 for e in episodes)
@@ -111,3 +91,33 @@ def evaluate(
         "success_ci95": [round(success_low, 2), round(success_high, 2)],
         "episodes": episodes,
     }
+
+
+def evaluate(
+    agent: Any,
+    task_name: str,
+    mode: str,
+    n_episodes: int,
+    camera_scale: float = 1.0,
+    progress: bool = True,
+    video_dir: str | None = None,
+    video_fps: int = 20,
+    workers: int | None = None,
+    engine: EvalEngine | None = None,
+) -> dict[str, Any]:
+    """Episodes on the first ``n_episodes`` seeds of ``mode``; returns per-episode and summary scores.
+
+    The episodes run in ``workers`` simulator processes (None: one per usable core, see
+    :func:`~cliport.evaluation.engine.resolve_workers`) with ``agent.act_batch`` in this process, or in
+    ``engine`` when given (its task, mode and workcell are then used and ``camera_scale``/``workers`` ignored).
+    """
+    seeds = episode_seeds(mode, n_episodes)
+    if engine is not None:
+        rows = engine.run(agent, seeds, video_dir, video_fps)
+        n_workers = engine.n_workers
+    else:
+        n_workers = resolve_workers(workers, n_episodes)
+        config = EnvConfig.defaults(camera_scale=camera_scale)
+        with EvalEngine(task_name, mode, config, n_workers, progress) as own:
+            rows = own.run(agent, seeds, video_dir, video_fps)
+    return {**summarise(task_name, mode, rows), "workers": n_workers}

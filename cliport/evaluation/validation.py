@@ -7,11 +7,14 @@ it finished and a re-run does only the missing checkpoints. :class:`SimulatorVal
 
 from __future__ import annotations
 
+import contextlib
 import os
 from typing import Any
 
 import torch
 
+from cliport.env.environment import EnvConfig
+from cliport.evaluation.engine import EvalEngine, resolve_workers
 from cliport.evaluation.evaluate import evaluate
 from cliport.utils.files import read_json, write_json
 from cliport.utils.run_dir import RunDir
@@ -25,9 +28,11 @@ def validate_run(
     device: torch.device,
     weights: dict[str, str] | None = None,
     progress: bool = True,
+    workers: int | None = None,
 ) -> dict[str, Any]:
     """Evaluate every saved checkpoint of ``run_dir`` not yet in its val.json on ``n_episodes`` val
-    episodes of each task of ``task`` (a task or group); returns the val.json content."""
+    episodes of each task of ``task`` (a task or group) in ``workers`` simulators (None: one per usable
+    core, see :func:`~cliport.evaluation.engine.resolve_workers`); returns the val.json content."""
     from cliport import tasks
     from cliport.agents import load_agent
 
@@ -37,18 +42,29 @@ def validate_run(
         previous = read_json(run.val)
         if previous.get("n_episodes") == n_episodes:
             results = previous
-    for step in run.checkpoint_steps():
-        if str(step) in results["checkpoints"]:
-            continue
-        agent = load_agent(run.checkpoint(step), device=device, weights=weights)
-        scores = [
-            evaluate(agent, name, "val", n_episodes, camera_scale, progress=progress)["mean_score"]
-            for name in tasks.resolve(task)
-        ]
-        results["checkpoints"][str(step)] = {"mean_score": round(sum(scores) / len(scores), 2), "per_task": scores}
-        best = max(results["checkpoints"].items(), key=lambda kv: (kv[1]["mean_score"], -int(kv[0])))
-        results["best_step"], results["best_score"] = int(best[0]), best[1]["mean_score"]
-        write_json(run.val, results)
+    todo = [step for step in run.checkpoint_steps() if str(step) not in results["checkpoints"]]
+    if not todo:
+        return results
+    n_workers = resolve_workers(workers, n_episodes, "--val-workers")
+    names = tasks.resolve(task)
+    with contextlib.ExitStack() as stack:
+        # One task: its workers live across checkpoints. A group starts each task's workers per checkpoint
+        # rather than keeping workers x tasks processes alive.
+        engines = {}
+        if len(names) == 1:
+            engine = EvalEngine(names[0], "val", EnvConfig.defaults(camera_scale=camera_scale), n_workers, progress)
+            engines[names[0]] = stack.enter_context(engine)
+        for step in todo:
+            agent = load_agent(run.checkpoint(step), device=device, weights=weights)
+            scores = [
+                evaluate(agent, name, "val", n_episodes, camera_scale, progress, workers=n_workers,
+                         engine=engines.get(name))["mean_score"]
+                for name in names
+            ]  # fmt: skip
+            results["checkpoints"][str(step)] = {"mean_score": round(sum(scores) / len(scores), 2), "per_task": scores}
+            best = max(results["checkpoints"].items(), key=lambda kv: (kv[1]["mean_score"], -int(kv[0])))
+            results["best_step"], results["best_score"] = int(best[0]), best[1]["mean_score"]
+            write_json(run.val, results)
     return results
 
 
@@ -64,14 +80,22 @@ class SimulatorValidator:
         device: torch.device,
         weights: dict[str, str] | None = None,
         progress: bool = True,
+        workers: int | None = None,
     ) -> None:
         self.run_dir, self.task, self.n_episodes, self.camera_scale = run_dir, task, n_episodes, camera_scale
-        self.device, self.weights, self.progress = device, weights, progress
+        self.device, self.weights, self.progress, self.workers = device, weights, progress, workers
 
     def checkpoint_saved(self, step: int, path: str) -> None:
         """Nothing to do yet: checkpoints are validated together in :meth:`finish`."""
 
     def finish(self) -> dict[str, Any]:
         return validate_run(
-            self.run_dir, self.task, self.n_episodes, self.camera_scale, self.device, self.weights, self.progress
+            self.run_dir,
+            self.task,
+            self.n_episodes,
+            self.camera_scale,
+            self.device,
+            self.weights,
+            self.progress,
+            self.workers,
         )

@@ -28,6 +28,16 @@ def test_chosen_seeds_and_bad_task():
     assert "no-such-task" in bad.stderr and "Traceback" not in bad.stderr
 
 
+def test_bad_worker_counts_are_one_clear_line():
+    for args, message in [
+        (["--workers", "0"], "--workers must be >= 1, got 0"),
+        (["--workers", "3", "--episodes", "2"], "--workers 3 is more than the 2 episode(s) to run"),
+    ]:
+        out = _run("--task", "block-insertion", *args)
+        err = out.stderr.strip().splitlines()
+        assert out.returncode != 0 and len(err) == 1 and err[0].startswith("error: ") and message in err[0], err
+
+
 TABLE = SCRIPT.parent / "oracle_table.py"
 
 
