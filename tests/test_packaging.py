@@ -27,8 +27,9 @@ runpy.run_module("cliport.cli.tasks", run_name="__main__")
 
 
 def _dependency_path() -> str:
-    """The test interpreter's third-party folders, without this checkout (nor an editable finder: -S)."""
-    return os.pathsep.join(p for p in sys.path if "-packages" in p and not Path(p).resolve().is_relative_to(REPO))
+    """The test interpreter's third-party folders (a virtual environment inside the checkout included: its
+    editable-install finder is not loaded under -S, so only this checkout's own folders can supply cliport)."""
+    return os.pathsep.join(p for p in sys.path if "-packages" in p)
 
 
 def _probe(cwd: Path, *front: Path) -> list[str]:

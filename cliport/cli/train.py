@@ -39,12 +39,6 @@ def _parser() -> tuple[argparse.ArgumentParser, list[str]]:
         metavar="KEY=VALUE",
         help="set any agent config field, e.g. n_rotations=12 (repeatable)",
     )
-    parser.add_argument(
-        "--val-workers",
-        type=int,
-        help="simulator processes validating each checkpoint (the agent acts on their episodes in one batch); "
-        "default: the usable CPU cores, at most 8 and at most --val-episodes; not saved with the run",
-    )
     parser.add_argument("--resume", action="store_true", help="continue the run in --run-dir from its last save")
     parser.add_argument("--no-progress", action="store_true")
     return parser, dests
@@ -97,10 +91,10 @@ def main(argv: list[str] | None = None) -> None:
 
     tasks.resolve(config.task)
     validator = None
-    if args.val_workers is not None and config.val_episodes == 0:
+    if config.val_workers is not None and config.val_episodes == 0:
         raise ConfigError("--val-workers needs validation: --val-episodes is 0")
     if config.val_episodes > 0:
-        workers = resolve_workers(args.val_workers, config.val_episodes, "--val-workers")
+        workers = resolve_workers(config.val_workers, config.val_episodes, "--val-workers")
         validator = SimulatorValidator(
             config.resolved_run_dir(),
             config.task,

@@ -38,6 +38,8 @@ class TrainConfig:
         rotation_aug: standard deviation (degrees) of the random rotation of the SE(2) training augmentation
             (the reference's 60 for every task); 0 turns rotation off (random shifts stay), e.g. for tasks
             whose instructions name directions ("left", "forward") that a rotated image contradicts.
+        val_workers: simulator processes validating each checkpoint (the agent acts on their episodes in one
+            batch); unset: the usable CPU cores, at most 8 and at most val_episodes.
         agent_config: the agent's own settings (its config class; defaults in configs/<agent>.toml).
         env: workcell settings of the validation episodes (defaults in configs/env.toml).
     """
@@ -62,6 +64,7 @@ class TrainConfig:
     env: EnvConfig
     # A default only so that config.json files of runs that predate the field load (they trained with 60).
     rotation_aug: float = 60.0
+    val_workers: int | None = None
 
     @classmethod
     def build(cls, overrides: Mapping[str, Any] | None = None, base: Mapping[str, Any] | None = None) -> TrainConfig:
