@@ -17,11 +17,13 @@ from cliport.agents.config import AgentConfig
 from cliport.env.heightmap import BOUNDS, PIXEL_SIZE, pix_to_xyz
 from cliport.env.transforms import yaw_to_quat
 from cliport.models.clip_backbone import FrozenCLIP
+from cliport.models.cuda_graphs import GraphedForward
 from cliport.models.heads import PickHead, PlaceHead
 from cliport.models.preprocess import raw_input
 from cliport.utils.files import save_torch
 
 CHECKPOINT_FORMAT = 1
+DEVICE_OPTIONS = ("channels_last", "bf16_clip", "fused_adam", "act_graphs")
 LossFn = Callable[[dict[str, Any]], tuple[torch.Tensor, dict[str, float]]]
 
 
@@ -72,17 +74,73 @@ class PickPlaceAgent(nn.Module):
         self.pick = pick
         self.place = place
         self.clip = clip
+        # Per-device speed settings, see optimize_for_device(); each applies on CUDA only.
+        self.device_options = dict.fromkeys(DEVICE_OPTIONS, True)
+        self._pick_graphs = GraphedForward(self._pick_forward)
+        self._place_graphs = GraphedForward(self._place_forward)
 
     @property
     def device(self) -> torch.device:
         return next(self.pick.parameters()).device
+
+    def optimize_for_device(
+        self,
+        channels_last: bool = True,
+        bf16_clip: bool = True,
+        fused_adam: bool = True,
+        act_graphs: bool = True,
+    ) -> PickPlaceAgent:
+        """Choose the CUDA speed settings (all on by default); they follow the agent across ``.to()``.
+
+        On CUDA: ``channels_last`` keeps the nets' weights and inputs (raw input, padded key input, query
+        crops) in channels_last, so cuDNN never converts layouts; ``bf16_clip`` runs the frozen CLIP image
+        trunk in bfloat16 (its features are returned as float32; the text encoder stays float32);
+        ``fused_adam`` makes :meth:`make_optimizer` use the fused Adam kernel; ``act_graphs`` replays the
+        pick and place forwards of :meth:`act_batch` as CUDA graphs, one per batch size and image size.
+        On the CPU all four are off whatever is asked: NCHW float32, foreach Adam, eager acting.
+        Returns the agent.
+        """
+        self.device_options.update(
+            channels_last=channels_last, bf16_clip=bf16_clip, fused_adam=fused_adam, act_graphs=act_graphs
+        )
+        self._apply_device_options()
+        return self
+
+    def set_act_graphs(self, enabled: bool) -> None:
+        """Turn the CUDA-graph replay of act_batch's forwards on or off (CUDA only; eager elsewhere).
+        Graphs captured so far are kept for when it is turned on again."""
+        self.device_options["act_graphs"] = enabled
+
+    def _use(self, option: str) -> bool:
+        return self.device_options[option] and self.device.type == "cuda"
+
+    def _apply_device_options(self) -> None:
+        self._pick_graphs.clear()
+        self._place_graphs.clear()
+        layout = torch.channels_last if self._use("channels_last") else torch.contiguous_format
+        for head in (self.pick, self.place):
+            head.to(memory_format=layout)
+            head.input_memory_format = layout
+        if self.clip is not None:
+            self.clip.model.visual.to(torch.bfloat16 if self._use("bf16_clip") else torch.float32)
+
+    def _apply(self, fn, recurse: bool = True):  # type: ignore[no-untyped-def]
+        # Every .to() / .cuda() / .float() re-allocates the parameters: recapture graphs, and bring the
+        # layout and CLIP precision in line with the (possibly new) device.
+        out = super()._apply(fn, recurse)
+        if getattr(self, "device_options", None) is not None:
+            self._apply_device_options()
+        return out
 
     def sentence_features(self, lang: list[str] | None) -> torch.Tensor | None:
         """(B, 1024) CLIP sentence features of the instructions, or None for agents without language."""
         return None
 
     def make_optimizer(self) -> torch.optim.Optimizer:
-        """Adam over the trainable parameters at the configured learning rate."""
+        """Adam over the trainable parameters at the configured learning rate: the fused kernel on CUDA
+        (see :meth:`optimize_for_device`), the foreach one elsewhere."""
+        if self._use("fused_adam"):
+            return torch.optim.Adam(self.trainable_parameters(), lr=self.config.lr, fused=True)
         return torch.optim.Adam(self.trainable_parameters(), lr=self.config.lr, foreach=True)
 
     def trainable_parameters(self) -> list[nn.Parameter]:
@@ -119,17 +177,21 @@ class PickPlaceAgent(nn.Module):
         """Cross-entropy over all pick pixels plus over all place pixels x rotations (batch mean).
 
         The targets come from the poses ``pose0``/``pose1`` (B, 7) (see :meth:`action_targets`), or are
-        given directly as ``pick_pix``/``place_pix`` (B, 2) and ``place_rot`` (B,).
+        given directly as ``pick_pix``/``place_pix`` (B, 2) and ``place_rot`` (B,). The inputs are copied
+        to the agent's device with ``non_blocking=True`` (asynchronous from pinned memory) before the raw
+        input is built there, so only uint8 colours travel.
         """
         device = self.device
-        x = raw_input(batch["color"], batch["height"]).to(device)
+
+        def move(value: Any) -> torch.Tensor:
+            return torch.as_tensor(value).to(device, non_blocking=True)
+
+        x = raw_input(move(batch["color"]), move(batch["height"]))
         if "pose0" in batch:
-            pick_pix, place_pix, place_rot = self.action_targets(batch["pose0"], batch["pose1"], x.shape[-2:])
+            targets = self.action_targets(batch["pose0"], batch["pose1"], x.shape[-2:])
         else:
-            pick_pix, place_pix, place_rot = batch["pick_pix"], batch["place_pix"], batch["place_rot"]
-        pick_pix = torch.as_tensor(pick_pix, device=device).long()
-        place_pix = torch.as_tensor(place_pix, device=device).long()
-        place_rot = torch.as_tensor(place_rot, device=device).long()
+            targets = (batch["pick_pix"], batch["place_pix"], batch["place_rot"])
+        pick_pix, place_pix, place_rot = (move(t).long() for t in targets)
         pick_logits, place_logits = self.logits(x, pick_pix, batch.get("lang"))
         h, w = x.shape[-2:]
         pick_target = pick_pix[:, 0] * w + pick_pix[:, 1]
@@ -150,49 +212,93 @@ class PickPlaceAgent(nn.Module):
         self.train()
         return optimizer_step(self.compute_loss, batch, optimizer, autocast)
 
-    @torch.no_grad()
     def act(self, obs: dict[str, np.ndarray], instruction: str | None = None) -> dict[str, Any]:
         """Pick and place poses for one observation (``color`` (H, W, 3) uint8, ``height`` (H, W)).
 
         Returns pose0 / pose1 as ((x, y, z), quat xyzw) — pose0 with yaw 0, pose1 with the decoded
         relative yaw — pick_pix and place_pix (u, v), place_rot (radians, in [0, 2*pi)), and the
         softmax heatmaps pick_heatmap (H, W) and place_heatmap (H, W) (max over rotations).
+        Same as ``act_batch([obs], [instruction])[0]``.
         """
-        self.eval()
-        device = self.device
-        height = np.asarray(obs["height"], dtype=np.float32)
-        x = raw_input(obs["color"], height).to(device)
-        sentence = self.sentence_features(None if instruction is None else [instruction])
-        h, w = height.shape
+        return self.act_batch([obs], [instruction])[0]
 
-        pick_prob = F.softmax(self.pick(x, sentence).flatten(1).float(), dim=1).reshape(h, w)
-        pick_index = int(torch.argmax(pick_prob))
-        pick_pix = (pick_index // w, pick_index % w)
+    def _pick_forward(self, x: torch.Tensor, sentence: torch.Tensor | None) -> torch.Tensor:
+        """Raw (B, 6, H, W), sentence (B, 1024) or None -> pick logits (B, H, W)."""
+        return self.pick(x, sentence)
 
-        pick_tensor = torch.tensor([pick_pix], device=device)
-        place_logits = self.place(x, pick_tensor, sentence)[0]
-        n_rot = place_logits.shape[0]
-        place_prob = F.softmax(place_logits.flatten().float(), dim=0).reshape(n_rot, h, w)
-        place_index = int(torch.argmax(place_prob))
-        rot_bin, rest = divmod(place_index, h * w)
-        place_pix = (rest // w, rest % w)
-        place_rot = rot_bin * 2 * math.pi / n_rot
+    def _place_forward(self, x: torch.Tensor, pick_pix: torch.Tensor, sentence: torch.Tensor | None) -> torch.Tensor:
+        """Raw (B, 6, H, W), pick (B, 2) int64, sentence (B, 1024) or None -> place logits (B, R, H, W)."""
+        return self.place(x, pick_pix, sentence)
 
-        return {
-            "pose0": (pix_to_xyz(pick_pix, height), yaw_to_quat(0.0)),
-            "pose1": (pix_to_xyz(place_pix, height), yaw_to_quat(place_rot)),
-            "pick_pix": pick_pix,
-            "place_pix": place_pix,
-            "place_rot": place_rot,
-            "pick_heatmap": pick_prob.cpu().numpy().astype(np.float32),
-            "place_heatmap": place_prob.amax(dim=0).cpu().numpy().astype(np.float32),
-        }
+    def _graphs_apply(self, x: torch.Tensor) -> bool:
+        return self._use("act_graphs") and not torch.is_autocast_enabled(x.device.type)
 
+    def _act_sentence(self, instructions: list[str | None]) -> torch.Tensor | None:
+        if all(i is None for i in instructions):
+            return self.sentence_features(None)
+        return self.sentence_features(list(instructions))  # type: ignore[arg-type]
+
+    @torch.no_grad()
     def act_batch(
         self, observations: list[dict[str, np.ndarray]], instructions: list[str | None]
     ) -> list[dict[str, Any]]:
-        """What :meth:`act` returns, for each (observation, instruction) pair (stand-in: a loop over act)."""
-        return [self.act(obs, instruction) for obs, instruction in zip(observations, instructions, strict=True)]
+        """:meth:`act` for B observations of one image size at once: one batched pick forward, then one
+        batched place forward over the (observation, chosen pick) pairs.
+
+        observations: B dicts of ``color`` (H, W, 3) uint8 and ``height`` (H, W); instructions: B strings
+        (or None for agents without language). Returns B dicts as :meth:`act` does. On CUDA the two
+        forwards replay CUDA graphs (see :meth:`optimize_for_device`) unless autocast is active.
+        """
+        if len(observations) != len(instructions):
+            raise ValueError(f"{len(observations)} observations but {len(instructions)} instructions")
+        if not observations:
+            return []
+        self.eval()
+        device = self.device
+        heights = [np.asarray(obs["height"], dtype=np.float32) for obs in observations]
+        if len({h.shape for h in heights}) != 1:
+            raise ValueError(f"act_batch needs observations of one size, got {sorted({h.shape for h in heights})}")
+        color = torch.from_numpy(np.stack([np.asarray(obs["color"]) for obs in observations]))
+        x = raw_input(color.to(device), torch.from_numpy(np.stack(heights)).to(device))
+        sentence = self._act_sentence(instructions)
+        b, h, w = len(observations), *heights[0].shape
+        graphs = self._graphs_apply(x)
+
+        pick_forward = self._pick_graphs if graphs else self._pick_forward
+        pick_logits = pick_forward(x, sentence)
+        pick_prob = F.softmax(pick_logits.reshape(b, h * w).float(), dim=1)
+        pick_index = torch.argmax(pick_prob, dim=1)
+        pick_pix = torch.stack([pick_index // w, pick_index % w], dim=1)
+
+        place_forward = self._place_graphs if graphs else self._place_forward
+        place_logits = place_forward(x, pick_pix, sentence)
+        n_rot = place_logits.shape[1]
+        place_prob = F.softmax(place_logits.reshape(b, n_rot * h * w).float(), dim=1)
+        place_index = torch.argmax(place_prob, dim=1)
+        place_heatmap = place_prob.reshape(b, n_rot, h, w).amax(dim=1)
+
+        pick_pix_np = pick_pix.cpu().numpy()
+        place_index_np = place_index.cpu().numpy()
+        pick_heatmaps = pick_prob.reshape(b, h, w).cpu().numpy().astype(np.float32)
+        place_heatmaps = place_heatmap.cpu().numpy().astype(np.float32)
+        results = []
+        for i in range(b):
+            pick = (int(pick_pix_np[i, 0]), int(pick_pix_np[i, 1]))
+            rot_bin, rest = divmod(int(place_index_np[i]), h * w)
+            place = (rest // w, rest % w)
+            place_rot = rot_bin * 2 * math.pi / n_rot
+            results.append(
+                {
+                    "pose0": (pix_to_xyz(pick, heights[i]), yaw_to_quat(0.0)),
+                    "pose1": (pix_to_xyz(place, heights[i]), yaw_to_quat(place_rot)),
+                    "pick_pix": pick,
+                    "place_pix": place,
+                    "place_rot": place_rot,
+                    "pick_heatmap": pick_heatmaps[i],
+                    "place_heatmap": place_heatmaps[i],
+                }
+            )
+        return results
 
     def _frozen_prefixes(self) -> list[str]:
         modules = self.named_modules(remove_duplicate=False)  # the shared CLIP sits under several names

@@ -35,7 +35,7 @@ class TwoStreamAgent(PickPlaceAgent):
 
     def sentence_features(self, lang: list[str] | None) -> torch.Tensor:
         """(B,) instructions -> (B, 1024) cached CLIP sentence features."""
-        if lang is None:
-            raise ValueError("the two-stream agent needs an instruction")
+        if lang is None or any(text is None for text in lang):
+            raise ValueError("the two-stream agent needs an instruction for every observation")
         assert self.clip is not None
         return self.clip.sentence_features(list(lang))

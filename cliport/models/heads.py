@@ -25,6 +25,8 @@ class PickHead(nn.Module):
     def __init__(self, net: nn.Module) -> None:
         super().__init__()
         self.net = net
+        # The layout the net's input is given in (channels_last on CUDA, see PickPlaceAgent.optimize_for_device).
+        self.input_memory_format = torch.contiguous_format
 
     def forward(self, x: torch.Tensor, sentence: torch.Tensor | None = None) -> torch.Tensor:
         """Raw (B, 6, H, W), sentence (B, 1024) or None -> logits (B, H, W)."""
@@ -32,6 +34,7 @@ class PickHead(nn.Module):
         side = max(h, w)
         top, left = (side - h) // 2, (side - w) // 2
         padded = F.pad(x, (left, side - w - left, top, side - h - top))
+        padded = padded.contiguous(memory_format=self.input_memory_format)
         logits = self.net(padded, sentence)
         return logits[:, 0, top : top + h, left : left + w]
 
@@ -72,6 +75,7 @@ class PlaceHead(nn.Module):
         self.query_net = query_net
         self.crop_size = crop_size
         self.n_rotations = n_rotations
+        self.input_memory_format = torch.contiguous_format
 
     def rotation_bin(self, relative_yaw: torch.Tensor) -> torch.Tensor:
         """Bin of a relative place yaw (place yaw - pick yaw, radians), (B,) float -> (B,) int64:
@@ -86,15 +90,20 @@ class PlaceHead(nn.Module):
         grid = rotated_crop_grid(pick_pix, self.n_rotations, self.crop_size, padded.shape[-2:], self.crop_size // 2)
         crops = F.grid_sample(padded, grid.to(padded.dtype), mode="bilinear", align_corners=True)
         crops = crops.reshape(b, c, self.n_rotations, self.crop_size, self.crop_size)
-        return crops.transpose(1, 2).reshape(b * self.n_rotations, c, self.crop_size, self.crop_size)
+        crops = crops.transpose(1, 2).reshape(b * self.n_rotations, c, self.crop_size, self.crop_size)
+        return crops.contiguous(memory_format=self.input_memory_format)
 
     def forward(self, x: torch.Tensor, pick_pix: torch.Tensor, sentence: torch.Tensor | None = None) -> torch.Tensor:
         """Raw (B, 6, H, W), pick (B, 2) int (u, v), sentence (B, 1024) or None -> logits (B, R, H, W)."""
         b, _, h, w = x.shape
         pad = self.crop_size // 2
-        padded = F.pad(x, (pad, pad, pad, pad))
+        padded = F.pad(x, (pad, pad, pad, pad)).contiguous(memory_format=self.input_memory_format)
         key = self.key_net(padded, sentence)
-        query_sentence = None if sentence is None else sentence.repeat_interleave(self.n_rotations, dim=0)
+        query_sentence = None
+        if sentence is not None:
+            # Each sample's sentence for its R crops; unlike repeat_interleave, expand + reshape never
+            # synchronises with the host, so the place forward can be captured in a CUDA graph.
+            query_sentence = sentence[:, None].expand(-1, self.n_rotations, -1).reshape(b * self.n_rotations, -1)
         query = self.query_net(self.query_crops(padded, pick_pix), query_sentence)
         kernels = query.reshape(b, self.n_rotations, *query.shape[1:])
         return fft_cross_correlation(key, kernels)[..., :h, :w]

@@ -10,7 +10,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from cliport.models.blocks import ResidualStage, Upsample2x, scaled
+from cliport.models.blocks import ResidualStage, Upsample2x, scaled, upsample_bilinear
 from cliport.models.clip_backbone import SENTENCE_DIM, TRUNK_CHANNELS, FrozenCLIP
 from cliport.models.preprocess import IN_CHANNELS, transporter_normalize
 from cliport.models.resnet import ResNet43_8s, ResNet45_10s
@@ -50,7 +50,7 @@ class SkipUp(nn.Module):
 
     def forward(self, x: torch.Tensor, skip: torch.Tensor) -> torch.Tensor:
         """(N, in_ch, h, w), (N, skip_ch, H, W) -> (N, out_ch, H, W)."""
-        x = F.interpolate(x, size=skip.shape[-2:], mode="bilinear", align_corners=False)
+        x = upsample_bilinear(x, skip.shape[-2:])
         return self.conv(torch.cat([x, skip], dim=1))
 
 
@@ -76,7 +76,7 @@ class LateralFusion(nn.Module):
     def forward(self, x: torch.Tensor, lateral: torch.Tensor) -> torch.Tensor:
         """(N, sem_ch, H, W), (N, lat_ch, h, w) -> (N, sem_ch, H, W)."""
         if lateral.shape[-2:] != x.shape[-2:]:
-            lateral = F.interpolate(lateral, size=x.shape[-2:], mode="bilinear", align_corners=False)
+            lateral = upsample_bilinear(lateral, x.shape[-2:])
         return self.conv(F.relu(torch.cat([x, lateral], dim=1)))
 
 
@@ -115,7 +115,7 @@ class SemanticDecoder(nn.Module):
         x = self.out(self.tail(x))
         out_size = laterals[-1].shape[-2:]
         if x.shape[-2:] != out_size:
-            x = F.interpolate(x, size=out_size, mode="bilinear", align_corners=False)
+            x = upsample_bilinear(x, out_size)
         return x
 
 

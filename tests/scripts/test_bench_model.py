@@ -25,6 +25,22 @@ def test_reports_rates_memory_and_flops_as_json():
     assert 2.0 < result["train_gflop_per_sample"] / result["act_gflop"] < 4.0
 
 
+def test_profile_and_act_batch():
+    out = _run(*TINY, "--batch-sizes", "1", "--profile", "--act-batch", "2")
+    assert out.returncode == 0, out.stderr
+    result = json.loads(out.stdout)["transporter_only"]
+    rows = result["profile_top_ops"]
+    assert result["profile_device"] == "cpu" and len(rows) == 15
+    assert all(row["total_ms"] > 0 and row["calls"] > 0 and 0 < row["share"] <= 1 for row in rows)
+    assert [row["total_ms"] for row in rows] == sorted((row["total_ms"] for row in rows), reverse=True)
+    assert result["act_batch2_latency_s"] > 0 and result["act_batch2_s_per_observation"] > 0
+
+
+def test_cpu_defaults_are_small_and_help_names_paper_size():
+    out = _run("--help")
+    assert out.returncode == 0 and "--width 1 --batch-sizes 1 8" in " ".join(out.stdout.split())
+
+
 def test_bad_width_is_one_line_error():
     out = _run("--width", "0")
     assert out.returncode == 2
