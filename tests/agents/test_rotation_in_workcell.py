@@ -6,18 +6,21 @@ import numpy as np
 import pybullet as p
 import pytest
 
-from cliport.data.dataset import rotation_bin
+from cliport.agents import make_agent
 from cliport.env import shapes
 from cliport.env.environment import EnvConfig, Environment
 from cliport.env.transforms import quat_to_yaw, yaw_to_quat
 
 N_ROT = 36
+AGENT = make_agent("transporter_only", {"width": 0.0625, "n_rotations": N_ROT})
 
 
 @pytest.mark.parametrize("theta_deg", [30, 120, 250])
 def test_label_decode_and_execution_agree(theta_deg):
     theta = math.radians(theta_deg)
-    k = rotation_bin(yaw_to_quat(0.0), yaw_to_quat(theta), N_ROT)  # what the dataset labels
+    pose0 = np.array([[0.45, 0.1, 0.03, *yaw_to_quat(0.0)]])
+    pose1 = np.array([[0.55, -0.1, 0.03, *yaw_to_quat(theta)]])
+    k = int(AGENT.action_targets(pose0, pose1, (320, 160))[2])  # the training label
     decoded = k * 2 * math.pi / N_ROT  # what act() turns the argmax bin into (pose1 yaw, pose0 yaw 0)
     assert abs((decoded - theta + math.pi) % (2 * math.pi) - math.pi) <= math.pi / N_ROT + 1e-9
     with Environment(EnvConfig.defaults(camera_scale=0.5)) as env:
