@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+from dataclasses import dataclass, fields
 from typing import Any
 
 import torch
@@ -68,34 +69,22 @@ def validate_run(
     return results
 
 
+@dataclass
 class SimulatorValidator:
-    """Validates a run's checkpoints in the simulator once training has finished (see ``Validator``)."""
+    """Validates a run's checkpoints in the simulator once training has finished (see ``Validator``);
+    its fields are :func:`validate_run`'s arguments."""
 
-    def __init__(
-        self,
-        run_dir: str,
-        task: str,
-        n_episodes: int,
-        camera_scale: float,
-        device: torch.device,
-        weights: dict[str, str] | None = None,
-        progress: bool = True,
-        workers: int | None = None,
-    ) -> None:
-        self.run_dir, self.task, self.n_episodes, self.camera_scale = run_dir, task, n_episodes, camera_scale
-        self.device, self.weights, self.progress, self.workers = device, weights, progress, workers
+    run_dir: str
+    task: str
+    n_episodes: int
+    camera_scale: float
+    device: torch.device
+    weights: dict[str, str] | None = None
+    progress: bool = True
+    workers: int | None = None
 
     def checkpoint_saved(self, step: int, path: str) -> None:
         """Nothing to do yet: checkpoints are validated together in :meth:`finish`."""
 
     def finish(self) -> dict[str, Any]:
-        return validate_run(
-            self.run_dir,
-            self.task,
-            self.n_episodes,
-            self.camera_scale,
-            self.device,
-            self.weights,
-            self.progress,
-            self.workers,
-        )
+        return validate_run(**{f.name: getattr(self, f.name) for f in fields(self)})
