@@ -96,7 +96,7 @@ def run_study(config: StudyConfig, progress: bool = True) -> dict[str, Any]:
     from cliport.data.generate import DemoConfig, generate
     from cliport.evaluation.engine import resolve_workers
     from cliport.evaluation.evaluate import evaluate
-    from cliport.evaluation.validation import SimulatorValidator, validate_run
+    from cliport.evaluation.validation import make_validator, validate_run
     from cliport.train.trainer import train
     from cliport.utils.device import resolve_device
 
@@ -119,8 +119,15 @@ def run_study(config: StudyConfig, progress: bool = True) -> dict[str, Any]:
         if run.checkpoint_steps()[-1:] != [config.n_steps]:
             validator = None
             if validate:
-                validator = SimulatorValidator(
-                    run.root, config.task, config.val_episodes, config.camera_scale, device, None, progress, val_workers
+                validator = make_validator(
+                    train_config.val_mode,
+                    device,
+                    run_dir=run.root,
+                    task=config.task,
+                    n_episodes=config.val_episodes,
+                    camera_scale=config.camera_scale,
+                    progress=progress,
+                    workers=val_workers,
                 )
             train(train_config, resume=run.is_run(), progress=progress, validator=validator)
         elif validate:

@@ -85,7 +85,7 @@ def main(argv: list[str] | None = None) -> None:
     config = config_from_args(args, dests)
     from cliport import tasks
     from cliport.evaluation.engine import resolve_workers
-    from cliport.evaluation.validation import SimulatorValidator
+    from cliport.evaluation.validation import make_validator
     from cliport.train.trainer import train
     from cliport.utils.device import resolve_device
 
@@ -95,12 +95,13 @@ def main(argv: list[str] | None = None) -> None:
         raise ConfigError("--val-workers needs validation: --val-episodes is 0")
     if config.val_episodes > 0:
         workers = resolve_workers(config.val_workers, config.val_episodes, "--val-workers")
-        validator = SimulatorValidator(
-            config.resolved_run_dir(),
-            config.task,
-            config.val_episodes,
-            config.env.camera_scale,
+        validator = make_validator(
+            config.val_mode,
             resolve_device(config.device),
+            run_dir=config.resolved_run_dir(),
+            task=config.task,
+            n_episodes=config.val_episodes,
+            camera_scale=config.env.camera_scale,
             progress=not args.no_progress,
             workers=workers,
         )

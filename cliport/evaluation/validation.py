@@ -7,7 +7,10 @@ it finished and a re-run does only the missing checkpoints. :class:`SimulatorVal
 
 from __future__ import annotations
 
+import atexit
 import contextlib
+import logging
+import multiprocessing as mp
 import os
 from dataclasses import dataclass, fields
 from typing import Any
@@ -19,6 +22,8 @@ from cliport.evaluation.engine import EvalEngine, resolve_workers
 from cliport.evaluation.evaluate import evaluate
 from cliport.utils.files import read_json, write_json
 from cliport.utils.run_dir import RunDir
+
+log = logging.getLogger(__name__)
 
 
 def validate_run(
@@ -66,6 +71,8 @@ def validate_run(
             best = max(results["checkpoints"].items(), key=lambda kv: (kv[1]["mean_score"], -int(kv[0])))
             results["best_step"], results["best_score"] = int(best[0]), best[1]["mean_score"]
             write_json(run.val, results)
+            score = sum(scores) / len(scores)
+            log.info("validation: step %d scored %.2f on %d val episode(s)", step, score, n_episodes)
     return results
 
 
@@ -88,3 +95,66 @@ class SimulatorValidator:
 
     def finish(self) -> dict[str, Any]:
         return validate_run(**{f.name: getattr(self, f.name) for f in fields(self)})
+
+
+def _validate_as_checkpoints_arrive(arguments: dict[str, Any], steps: Any) -> None:
+    """Body of the background validation process: after each announced step, validate every saved
+    checkpoint not yet in val.json (this process is val.json's only writer); None ends it."""
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    while steps.get() is not None:
+        validate_run(**arguments)
+
+
+@dataclass
+class BackgroundValidator(SimulatorValidator):
+    """Validates each checkpoint in a separate process while training goes on, so the trainer never waits
+    for the simulator; ``finish()`` waits for the last validation. val.json is updated atomically as
+    results arrive, and a resumed run validates whatever a killed one had not (validate_run skips the rest).
+    The process holds its own copy of the agent on the same device."""
+
+    def __post_init__(self) -> None:
+        self._process: Any = None
+        self._steps: Any = None
+
+    def checkpoint_saved(self, step: int, path: str) -> None:
+        if self._process is None:
+            context = mp.get_context("spawn")
+            self._steps = context.Queue()
+            arguments = {f.name: getattr(self, f.name) for f in fields(SimulatorValidator)}
+            arguments["progress"] = False  # the training bar owns the terminal
+            self._process = context.Process(
+                target=_validate_as_checkpoints_arrive, args=(arguments, self._steps), name="cliport-validation"
+            )
+            self._process.start()
+            atexit.register(self._stop, 30.0)  # an interrupted training must not wait for validation forever
+        self._steps.put(step)
+
+    def _stop(self, timeout: float | None) -> int | None:
+        if self._process is None:
+            return None
+        if self._process.is_alive():
+            self._steps.put(None)
+            self._process.join(timeout)
+            if self._process.is_alive():
+                self._process.terminate()
+                self._process.join()
+        code = self._process.exitcode
+        self._process = None
+        atexit.unregister(self._stop)
+        return code
+
+    def finish(self) -> dict[str, Any]:
+        code = self._stop(None)
+        if code not in (None, 0):
+            log.warning("the validation process ended with exit code %s; validating what it left here", code)
+        return super().finish()  # validates anything still missing, then returns val.json's content
+
+
+def make_validator(mode: str, device: torch.device, **arguments: Any) -> SimulatorValidator:
+    """A validator for ``mode`` "after" (all checkpoints once training ends), "beside" (each one in a
+    background process as it is saved) or "auto" (beside on CUDA; after on a CPU, where the simulator
+    would compete with training for the cores)."""
+    if mode == "auto":
+        mode = "beside" if device.type == "cuda" else "after"
+    cls = {"after": SimulatorValidator, "beside": BackgroundValidator}[mode]
+    return cls(device=device, **arguments)

@@ -40,6 +40,8 @@ class TrainConfig:
             whose instructions name directions ("left", "forward") that a rotated image contradicts.
         val_workers: simulator processes validating each checkpoint (the agent acts on their episodes in one
             batch); unset: the usable CPU cores, at most 8 and at most val_episodes.
+        val_mode: when checkpoints are validated: beside (in a background process while training goes on),
+            after (all once training ends) or auto (beside on CUDA, after on a CPU).
         agent_config: the agent's own settings (its config class; defaults in configs/<agent>.toml).
         env: workcell settings of the validation episodes (defaults in configs/env.toml).
     """
@@ -65,6 +67,7 @@ class TrainConfig:
     # A default only so that config.json files of runs that predate the field load (they trained with 60).
     rotation_aug: float = 60.0
     val_workers: int | None = None
+    val_mode: str = "auto"
 
     @classmethod
     def build(cls, overrides: Mapping[str, Any] | None = None, base: Mapping[str, Any] | None = None) -> TrainConfig:
@@ -112,6 +115,8 @@ class TrainConfig:
         for key, low in minimum.items():
             if getattr(self, key) < low:
                 raise ConfigError(f"{key} must be >= {low}, got {getattr(self, key)}")
+        if self.val_mode not in ("auto", "after", "beside"):
+            raise ConfigError(f"val_mode must be auto, after or beside, got {self.val_mode!r}")
         if self.amp not in ("auto", "bf16", "none"):
             raise ConfigError(f"amp must be auto, bf16 or none, got {self.amp!r}")
         if self.env.camera_scale <= 0:
