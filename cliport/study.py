@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import statistics
 from typing import Any
 
 from cliport.errors import ConfigError
@@ -36,7 +37,9 @@ class StudyConfig:
         test_episodes: test episodes per checkpoint.
         batch_size: training batch size (None: configs/train.toml's).
         device: auto, cpu, cuda, ... (None: configs/train.toml's).
-        seed: training seed.
+        seed: training seed (when seeds is empty).
+        seeds: training seeds: one run per (agent, demos, seed), reported as mean and standard deviation
+            over seeds (the CLIPort authors advise 3 or more); empty = [seed].
         camera_scale: camera resolution of the demos and of every evaluation episode.
         demo_workers: parallel simulators for demo generation.
         agent_config: agent settings (e.g. {"width": 0.25, "clip_weights": "random"}); each run takes the keys
@@ -57,14 +60,20 @@ class StudyConfig:
     batch_size: int | None = None
     device: str | None = None
     seed: int = 0
+    seeds: list[int] = dataclasses.field(default_factory=list)
     camera_scale: float = 1.0
     demo_workers: int = 1
     agent_config: dict[str, Any] = dataclasses.field(default_factory=dict)
     checkpoint_steps: list[int] | None = None
     eval_workers: int | None = None
 
-    def train_config(self, agent: str, n_demos: int) -> TrainConfig:
-        """The train config of the (agent, n_demos) run."""
+    def training_seeds(self) -> list[int]:
+        return sorted(set(self.seeds)) or [self.seed]
+
+    def train_config(self, agent: str, n_demos: int, seed: int | None = None) -> TrainConfig:
+        """The train config of the (agent, n_demos, seed) run (its folder names the seed when there are several)."""
+        seed = self.seed if seed is None else seed
+        suffix = f"-s{seed}" if len(self.training_seeds()) > 1 else ""
         from cliport.agents import agent_class
 
         fields = {f.name for f in dataclasses.fields(agent_class(agent).config_class)}
@@ -78,8 +87,8 @@ class StudyConfig:
             "n_demos": n_demos,
             "n_steps": self.n_steps,
             "data_dir": self.data_dir,
-            "run_dir": os.path.join(self.out, "runs", f"{agent}-n{n_demos}"),
-            "seed": self.seed,
+            "run_dir": os.path.join(self.out, "runs", f"{agent}-n{n_demos}{suffix}"),
+            "seed": seed,
             "val_episodes": self.val_episodes,
             "batch_size": self.batch_size,
             "device": self.device,
@@ -100,7 +109,12 @@ def run_study(config: StudyConfig, progress: bool = True) -> dict[str, Any]:
     from cliport.train.trainer import train
     from cliport.utils.device import resolve_device
 
-    train_configs = {(a, n): config.train_config(a, n) for a in config.agents for n in config.n_demos}
+    train_configs = {
+        (a, n, seed): config.train_config(a, n, seed)
+        for a in config.agents
+        for n in config.n_demos
+        for seed in config.training_seeds()
+    }
     test_workers = resolve_workers(config.eval_workers, config.test_episodes, "--eval-workers")
     val_workers = None
     if config.val_episodes > 0:
@@ -111,8 +125,8 @@ def run_study(config: StudyConfig, progress: bool = True) -> dict[str, Any]:
         data_dir=config.data_dir, workers=config.demo_workers, camera_scale=config.camera_scale
     )
     generate(config.task, "train", max(config.n_demos), demo_config, progress=progress)
-    runs = []
-    for (agent_name, n), train_config in train_configs.items():
+    per_seed: dict[tuple[str, int], list[dict[str, Any]]] = {}
+    for (agent_name, n, seed), train_config in train_configs.items():
         run = RunDir(train_config.resolved_run_dir())
         device = resolve_device(train_config.device)
         validate = config.val_episodes > 0
@@ -152,8 +166,10 @@ def run_study(config: StudyConfig, progress: bool = True) -> dict[str, Any]:
                 write_json(path, result)
             test[str(step)] = read_json(path)["mean_score"]
         val = read_json(run.val) if os.path.exists(run.val) else {"checkpoints": {}}
-        runs.append(summarise_run(config.task, agent_name, n, test, val))
-    results = {"task": config.task, "n_steps": config.n_steps, "runs": runs}
+        per_seed.setdefault((agent_name, n), []).append({**summarise_run(config.task, agent_name, n, test, val),
+                                                         "seed": seed})  # fmt: skip
+    runs = [combine_seeds(group) for group in per_seed.values()]
+    results = {"task": config.task, "n_steps": config.n_steps, "seeds": config.training_seeds(), "runs": runs}
     write_json(os.path.join(config.out, "results.json"), results)
     with open(os.path.join(config.out, "table.md"), "w") as f:
         f.write(markdown_table(results))
@@ -178,6 +194,43 @@ def summarise_run(task: str, agent: str, n_demos: int, test: dict[str, float], v
     }
 
 
+SCORES = ("test_at_val_selected", "test_at_last", "best_test")
+
+
+def _mean_std(values: list[float | None]) -> tuple[float | None, float | None]:
+    known = [v for v in values if v is not None]
+    if not known:
+        return None, None
+    mean = statistics.mean(known)
+    return round(mean, 2), (round(statistics.stdev(known), 2) if len(known) > 1 else None)
+
+
+def combine_seeds(runs: list[dict[str, Any]]) -> dict[str, Any]:
+    """One row of the study from the runs of one (agent, demos) cell over training seeds: every score is
+    the mean over seeds with its sample standard deviation in ``<key>_std`` (None for one seed); each
+    seed's own summary stays under ``per_seed``."""
+    first = runs[0]
+    row: dict[str, Any] = {
+        "agent": first["agent"],
+        "n_demos": first["n_demos"],
+        "seeds": [r.get("seed") for r in runs],
+        "published": first["published"],
+        "per_seed": runs,
+    }
+    for key in SCORES:
+        row[key], row[f"{key}_std"] = _mean_std([r[key] for r in runs])
+    selected = [r["val_selected_step"] for r in runs]
+    row["val_selected_step"] = selected[0] if len(runs) == 1 else selected
+    steps = sorted({c["step"] for r in runs for c in r["checkpoints"]})
+    row["checkpoints"] = []
+    for step in steps:
+        cells = [c for r in runs for c in r["checkpoints"] if c["step"] == step]
+        val, val_std = _mean_std([c["val"] for c in cells])
+        test, test_std = _mean_std([c["test"] for c in cells])
+        row["checkpoints"].append({"step": step, "val": val, "test": test, "val_std": val_std, "test_std": test_std})
+    return row
+
+
 def markdown_table(results: dict[str, Any]) -> str:
     lines = [
         f"# Reproduction study: {results['task']} ({results['n_steps']} training steps)",
@@ -188,19 +241,28 @@ def markdown_table(results: dict[str, Any]) -> str:
         "|---|---|---|---|---|---|",
     ]
 
-    def fmt(v: float | None) -> str:
-        return "-" if v is None else f"{v:.1f}"
+    def fmt(v: float | None, std: float | None = None) -> str:
+        return "-" if v is None else f"{v:.1f}" + ("" if std is None else f" ± {std:.1f}")
 
+    seeds = results.get("seeds", [])
+    if len(seeds) > 1:
+        lines.insert(3, f"Mean ± standard deviation over {len(seeds)} training seeds ({', '.join(map(str, seeds))}).")
     for r in results["runs"]:
         published = "; ".join(f"{p['score']:.1f} ({p['source']})" for p in r["published"]) or "-"
-        selected = fmt(r["test_at_val_selected"])
-        if r["val_selected_step"] is not None:
-            selected += f" (step {r['val_selected_step']})"
-        last, best = fmt(r["test_at_last"]), fmt(r["best_test"])
+        selected = fmt(r["test_at_val_selected"], r.get("test_at_val_selected_std"))
+        chosen = r["val_selected_step"]
+        if isinstance(chosen, list):
+            selected += f" (steps {', '.join(str(c) for c in chosen)})"
+        elif chosen is not None:
+            selected += f" (step {chosen})"
+        last, best = fmt(r["test_at_last"], r.get("test_at_last_std")), fmt(r["best_test"], r.get("best_test_std"))
         lines.append(f"| {r['agent']} | {r['n_demos']} | {selected} | {last} | {best} | {published} |")
     lines += ["", "Per checkpoint (val / test):", ""]
     for r in results["runs"]:
-        cells = ", ".join(f"{c['step']}: {fmt(c['val'])} / {fmt(c['test'])}" for c in r["checkpoints"])
+        cells = ", ".join(
+            f"{c['step']}: {fmt(c['val'], c.get('val_std'))} / {fmt(c['test'], c.get('test_std'))}"
+            for c in r["checkpoints"]
+        )
         lines.append(f"- {r['agent']}, {r['n_demos']} demos: {cells}")
     return "\n".join(lines) + "\n"
 
@@ -218,7 +280,14 @@ def plot_study(results: dict[str, Any], path: str) -> None:
         color = f"C{i % 10}"
         xs = [c["step"] for c in r["checkpoints"]]
         ys = [c["test"] for c in r["checkpoints"]]
-        ax.plot(xs, ys, "o-", color=color, label=f"ours: {r['agent']}, {r['n_demos']} demos")
+        n_seeds = len(r.get("seeds") or [None])
+        label = f"ours: {r['agent']}, {r['n_demos']} demos" + (f", mean of {n_seeds} seeds" if n_seeds > 1 else "")
+        ax.plot(xs, ys, "o-", color=color, label=label)
+        stds = [c.get("test_std") for c in r["checkpoints"]]
+        if any(s is not None for s in stds):
+            low = [y - (s or 0.0) for y, s in zip(ys, stds, strict=True)]
+            high = [y + (s or 0.0) for y, s in zip(ys, stds, strict=True)]
+            ax.fill_between(xs, low, high, color=color, alpha=0.15, linewidth=0)
         for p in r["published"]:
             marker = markers["Transporter" if p["source"].startswith("Transporter") else "CLIPort"]
             ax.plot([p["training_steps"]], [p["score"]], marker, color=color, markersize=9, fillstyle="none")

@@ -23,3 +23,26 @@ def test_summary_table_and_plot(tmp_path):
     path = str(tmp_path / "plot.png")
     plot_study(results, path)
     assert os.path.getsize(path) > 10000
+
+
+def test_several_seeds_are_reported_as_mean_and_std(tmp_path):
+    from cliport.study import StudyConfig, combine_seeds
+
+    val = {"checkpoints": {"1000": {"mean_score": 40.0}, "2000": {"mean_score": 70.0}}, "best_step": 2000}
+    runs = [
+        {**summarise_run("block-insertion", "transporter_only", 10, {"1000": a, "2000": b}, val), "seed": seed}
+        for seed, (a, b) in enumerate([(30.0, 60.0), (50.0, 80.0), (40.0, 70.0)])
+    ]
+    row = combine_seeds(runs)
+    assert row["seeds"] == [0, 1, 2] and row["test_at_last"] == 70.0 and row["test_at_last_std"] == 10.0
+    assert row["checkpoints"][0] == {"step": 1000, "val": 40.0, "test": 40.0, "val_std": 0.0, "test_std": 10.0}
+    results = {"task": "block-insertion", "n_steps": 2000, "seeds": [0, 1, 2], "runs": [row]}
+    table = markdown_table(results)
+    assert "over 3 training seeds" in table and "| 70.0 ± 10.0 (steps 2000, 2000, 2000) | 70.0 ± 10.0 |" in table
+    plot_study(results, str(tmp_path / "plot.png"))
+    config = StudyConfig(task="block-insertion", agents=["transporter_only"], n_demos=[10], n_steps=10, out="s",
+                         data_dir="d", seeds=[2, 0, 1])  # fmt: skip
+    assert config.training_seeds() == [0, 1, 2]
+    assert config.train_config("transporter_only", 10, 1).run_dir == "s/runs/transporter_only-n10-s1"
+    assert StudyConfig(task="t", agents=["transporter_only"], n_demos=[1], n_steps=1, out="s", data_dir="d",
+                       ).train_config("transporter_only", 1).run_dir == "s/runs/transporter_only-n1"  # fmt: skip
