@@ -21,7 +21,7 @@ def _parser() -> tuple[argparse.ArgumentParser, list[str]]:
         description="Evaluate checkpoints of a training run on val/test episodes, or run one episode with "
         "--lang and save a video and the pick/place heatmaps. Defaults come from configs/eval.toml.",
     )
-    parser.add_argument("--run-dir", required=True, help="a cliport-train run folder")
+    parser.add_argument("--run-dir", required=True, help="a cliport-train run folder, or hf://org/name[@revision]")
     dests = add_flags(parser, [EvalConfig])
     parser.add_argument("--task", help="default: the run's task")
     parser.add_argument("--agent", help="expected agent of the checkpoint (checked)")
@@ -48,6 +48,7 @@ def main(argv: list[str] | None = None) -> None:
     from cliport import tasks
     from cliport.agents import load_agent
     from cliport.data.seeds import episode_seeds
+    from cliport.deploy.hub import HF_PREFIX, hub_eval_dir, resolve_run_dir
     from cliport.env.environment import EnvConfig
     from cliport.evaluation.engine import EvalEngine, resolve_workers
     from cliport.evaluation.evaluate import EvalConfig, evaluate
@@ -65,6 +66,7 @@ def main(argv: list[str] | None = None) -> None:
     if config.mode not in ("val", "test"):
         raise ConfigError(f"--mode must be val or test, got {config.mode!r}")
     workers = resolve_workers(config.workers, 1 if args.lang is not None else config.n_episodes)
+    source, args.run_dir = args.run_dir, resolve_run_dir(args.run_dir)
     run_config = load_run_config(args.run_dir)
     run = RunDir(args.run_dir)
     camera_scale = config.camera_scale or run_config.env.camera_scale
@@ -75,7 +77,7 @@ def main(argv: list[str] | None = None) -> None:
             file=sys.stderr,
         )
     names = tasks.resolve(args.task or run_config.task)
-    out = args.out or run.eval_dir
+    out = args.out or (hub_eval_dir(source) if source.startswith(HF_PREFIX) else run.eval_dir)
     device = resolve_device(config.device)
     weights = {"clip_weights": args.clip_weights} if args.clip_weights else None
     engines: dict[str, EvalEngine] = {}  # one per task, its workers kept across checkpoints (--checkpoint all)
@@ -116,7 +118,7 @@ def main(argv: list[str] | None = None) -> None:
                     agent=agent.name,
                     clip_weights=agent.clip_source(),
                     weight_sources=agent.weight_source_values(),
-                    run_dir=args.run_dir,
+                    run_dir=source,
                 )
                 write_json(os.path.join(out, f"{name}-{config.mode}-{which}.json"), result)
                 summary = {k: v for k, v in result.items() if k != "episodes"}

@@ -20,7 +20,7 @@ def _parser() -> argparse.ArgumentParser:
         "intrinsics (3x3), position [x, y, z] and rotation [x, y, z, w] (camera-to-world, z forward, y down), "
         "optional depth_scale (metres per unit of integer depth) and zrange.",
     )
-    parser.add_argument("--run-dir", required=True, help="a cliport-train run folder")
+    parser.add_argument("--run-dir", required=True, help="a cliport-train run folder, or hf://org/name[@revision]")
     parser.add_argument("--checkpoint", default="best", help="best (by validation), last, or a saved step")
     parser.add_argument("--rgb", nargs="+", metavar="IMAGE", help="colour images, one per camera (8-bit PNG/JPEG)")
     parser.add_argument(

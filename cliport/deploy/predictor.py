@@ -16,11 +16,12 @@ from cliport.errors import ConfigError
 
 
 def resolve_checkpoint(run_dir: str, which: str = "best") -> tuple[str, int | str]:
-    """The checkpoint file of a run that ``which`` names (best by val.json, last, or a saved step) and its
-    step (or "last")."""
+    """The checkpoint file of a run (a folder or ``hf://org/name[@revision]``) that ``which`` names (best by
+    val.json, last, or a saved step) and its step (or "last")."""
+    from cliport.deploy.hub import resolve_run_dir
     from cliport.utils.run_dir import RunDir
 
-    run = RunDir(run_dir)
+    run = RunDir(resolve_run_dir(run_dir))
     (step,) = run.resolve(which, run.best_step() if which == "best" else None, allow_all=False)
     return run.checkpoint(step), step
 
@@ -103,7 +104,8 @@ class Prediction:
 class Predictor:
     """A trained run's agent acting on real (or any) RGB-D views fused exactly as the simulator fuses them.
 
-    ``Predictor(run_dir, checkpoint="best", device="auto").predict(images, cameras, instruction)`` with
+    ``Predictor(run_dir, checkpoint="best", device="auto")`` (``run_dir`` a folder or ``hf://org/name[@rev]``)
+    ``.predict(images, cameras, instruction)`` with
     ``images`` a list of (rgb (H, W, 3) uint8, depth (H, W) float32 metres) and ``cameras`` a list of
     :class:`CameraConfig` (or cameras.json objects), one per view.
     """
