@@ -56,15 +56,15 @@ def resolve_run_dir(text: str) -> str:
     from huggingface_hub.errors import LocalEntryNotFoundError, RepositoryNotFoundError, RevisionNotFoundError
 
     offline = _offline()
+    rev = f" --revision {revision}" if revision else ""
     try:
         path = snapshot_download(repo_id, revision=revision, local_files_only=offline)
     except LocalEntryNotFoundError:
         why = "HF_HUB_OFFLINE is set" if offline else "the Hub cannot be reached"
         raise RunDirError(
             f"{text} is not in the local Hugging Face cache and {why}: pre-fill the cache on a machine with "
-            f"network (same HF_HOME) with `huggingface-cli download {repo_id}`"
-            + (f" --revision {revision}" if revision else "")
-            + ", or pass a local run folder to --run-dir"
+            f"network (same HF_HOME) with `hf download {repo_id}{rev}` (`huggingface-cli download "
+            f"{repo_id}{rev}` with huggingface_hub < 1.0), or pass a local run folder to --run-dir"
         ) from None
     except RevisionNotFoundError:
         raise RunDirError(f"{text}: the repo {repo_id} has no revision {revision!r}") from None
@@ -230,7 +230,7 @@ def model_card(
         "```",
         "",
         "The repo is a cliport run folder: `hf://org/name[@revision]` works wherever `--run-dir` is read "
-        "(offline: `HF_HUB_OFFLINE=1` after `huggingface-cli download " + repo_id + "`).",
+        f"(offline: `HF_HUB_OFFLINE=1` after `hf download {repo_id}`).",
         "",
         "```python",
         "from cliport.deploy import Predictor",

@@ -155,7 +155,9 @@ def test_hub_run_resolves_from_the_cache_and_acts_like_the_original(trained_run,
 def test_uncached_hub_run_is_one_line(capsys):
     err = _one_error(lambda: eval_cli.main(["--run-dir", "hf://org/missing"]), capsys)
     assert "hf://org/missing is not in the local Hugging Face cache" in err
-    assert "HF_HUB_OFFLINE" in err and "huggingface-cli download org/missing" in err and "local run folder" in err
+    assert "HF_HUB_OFFLINE" in err and "hf download org/missing" in err and "local run folder" in err
+    err = _one_error(lambda: eval_cli.main(["--run-dir", "hf://org/missing@v2"]), capsys)
+    assert "hf download org/missing --revision v2" in err
     err = _one_error(lambda: eval_cli.main(["--run-dir", "hf://no-slash"]), capsys)
     assert "hf://org/name" in err
 
