@@ -17,7 +17,7 @@ FORBIDDEN = {
     "data": ["cliport.agents", "cliport.models", "cliport.train", "cliport.evaluation", "cliport.cli"],
     "train": ["cliport.evaluation", "cliport.cli", "cliport.study"],
     "evaluation": ["cliport.train", "cliport.cli", "cliport.study", "cliport.deploy"],
-    "deploy": ["cliport.train", "cliport.cli", "cliport.study", "cliport.data"],
+    "deploy": ["cliport.train", "cliport.cli", "cliport.study"],
 }  # fmt: skip
 
 

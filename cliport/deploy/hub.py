@@ -113,11 +113,12 @@ def _copy_checkpoint(src: str, dst: str) -> dict[str, Any]:
 
 def build_hub_folder(run_dir: str, out: str, repo_id: str, which: str = "best") -> str:
     """Write the folder ``cliport-push`` uploads into ``out`` (a run folder in itself) and return it."""
-    from cliport.train.trainer import load_run_config
-
     parse_hub_ref(repo_id)
-    load_run_config(run_dir)  # RunDirError unless it is a run
     run = layout.RunDir(run_dir)
+    if not os.path.isdir(run_dir):
+        raise RunDirError(f"run folder not found: {run_dir}")
+    if not run.is_run():
+        raise RunDirError(f"{run_dir} is not a training run (no {layout.CONFIG})")
     chosen = _chosen_checkpoints(run, which)
     if os.path.isdir(out) and os.listdir(out):
         raise RunDirError(f"--local-dir {out} is not empty: give a new or empty folder")
