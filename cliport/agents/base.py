@@ -16,8 +16,8 @@ from torch import nn
 from cliport.agents.config import AgentConfig
 from cliport.env.heightmap import BOUNDS, PIXEL_SIZE, pix_to_xyz
 from cliport.env.transforms import yaw_to_quat
-from cliport.models.clip_backbone import FrozenCLIP
 from cliport.models.cuda_graphs import GraphedForward
+from cliport.models.encoders import FrozenEncoder
 from cliport.models.heads import PickHead, PlaceHead
 from cliport.models.preprocess import raw_input
 from cliport.utils.files import save_torch
@@ -67,13 +67,13 @@ class PickPlaceAgent(nn.Module):
         config: AgentConfig,
         pick: PickHead,
         place: PlaceHead,
-        clip: FrozenCLIP | None = None,
+        encoder: FrozenEncoder | None = None,
     ) -> None:
         super().__init__()
         self.config = config
         self.pick = pick
         self.place = place
-        self.clip = clip
+        self.encoder = encoder
         # Per-device speed settings, see optimize_for_device(); each applies on CUDA only.
         self.device_options = dict.fromkeys(DEVICE_OPTIONS, True)
         self._pick_graphs = GraphedForward(self._pick_forward)
@@ -93,7 +93,7 @@ class PickPlaceAgent(nn.Module):
         """Choose the CUDA speed settings (all on by default); they follow the agent across ``.to()``.
 
         On CUDA: ``channels_last`` keeps the nets' weights and inputs (raw input, padded key input, query
-        crops) in channels_last, so cuDNN never converts layouts; ``bf16_clip`` runs the frozen CLIP image
+        crops) in channels_last, so cuDNN never converts layouts; ``bf16_clip`` runs the frozen encoder's image
         trunk in bfloat16 (its features are returned as float32; the text encoder stays float32);
         ``fused_adam`` makes :meth:`make_optimizer` use the fused Adam kernel; ``act_graphs`` replays the
         pick and place forwards of :meth:`act_batch` as CUDA graphs, one per batch size and image size.
@@ -121,20 +121,26 @@ class PickPlaceAgent(nn.Module):
         for head in (self.pick, self.place):
             head.to(memory_format=layout)
             head.input_memory_format = layout
-        if self.clip is not None:
-            self.clip.model.visual.to(torch.bfloat16 if self._use("bf16_clip") else torch.float32)
+        if self.encoder is not None:
+            self.encoder.set_image_dtype(torch.bfloat16 if self._use("bf16_clip") else torch.float32)
 
     def _apply(self, fn, recurse: bool = True):  # type: ignore[no-untyped-def]
         # Every .to() / .cuda() / .float() re-allocates the parameters: recapture graphs, and bring the
-        # layout and CLIP precision in line with the (possibly new) device.
+        # layout and the frozen trunk's precision in line with the (possibly new) device.
         out = super()._apply(fn, recurse)
         if getattr(self, "device_options", None) is not None:
             self._apply_device_options()
         return out
 
     def sentence_features(self, lang: list[str] | None) -> torch.Tensor | None:
-        """(B, 1024) CLIP sentence features of the instructions, or None for agents without language."""
-        return None
+        """(B,) instructions -> (B, sentence_dim) frozen-encoder sentence features (cached per string),
+        or None for agents that do not read language."""
+        if not self.uses_language:
+            return None
+        if lang is None or any(text is None for text in lang):
+            raise ValueError(f"the {self.name} agent needs an instruction for every observation")
+        assert self.encoder is not None
+        return self.encoder.sentence_features(list(lang))
 
     def make_optimizer(self) -> torch.optim.Optimizer:
         """Adam over the trainable parameters at the configured learning rate: the fused kernel on CUDA
@@ -223,11 +229,11 @@ class PickPlaceAgent(nn.Module):
         return self.act_batch([obs], [instruction])[0]
 
     def _pick_forward(self, x: torch.Tensor, sentence: torch.Tensor | None) -> torch.Tensor:
-        """Raw (B, 6, H, W), sentence (B, 1024) or None -> pick logits (B, H, W)."""
+        """Raw (B, 6, H, W), sentence (B, sentence_dim) or None -> pick logits (B, H, W)."""
         return self.pick(x, sentence)
 
     def _place_forward(self, x: torch.Tensor, pick_pix: torch.Tensor, sentence: torch.Tensor | None) -> torch.Tensor:
-        """Raw (B, 6, H, W), pick (B, 2) int64, sentence (B, 1024) or None -> place logits (B, R, H, W)."""
+        """Raw (B, 6, H, W), pick (B, 2) int64, sentence (B, sentence_dim) or None -> place logits (B, R, H, W)."""
         return self.place(x, pick_pix, sentence)
 
     def _graphs_apply(self, x: torch.Tensor) -> bool:
@@ -301,11 +307,11 @@ class PickPlaceAgent(nn.Module):
         return results
 
     def _frozen_prefixes(self) -> list[str]:
-        modules = self.named_modules(remove_duplicate=False)  # the shared CLIP sits under several names
-        return [name + "." for name, module in modules if isinstance(module, FrozenCLIP)]
+        modules = self.named_modules(remove_duplicate=False)  # the shared encoder sits under several names
+        return [name + "." for name, module in modules if isinstance(module, FrozenEncoder)]
 
     def trainable_state_dict(self) -> dict[str, torch.Tensor]:
-        """The state dict without any frozen CLIP tensor."""
+        """The state dict without any frozen encoder tensor."""
         prefixes = tuple(self._frozen_prefixes())
         return {k: v for k, v in self.state_dict().items() if not (prefixes and k.startswith(prefixes))}
 
@@ -318,7 +324,8 @@ class PickPlaceAgent(nn.Module):
             raise KeyError(f"checkpoint mismatch: missing {missing}, unexpected {unexpected}")
 
     def clip_source(self) -> str | None:
-        return None if self.clip is None else self.clip.source
+        """Where the frozen CLIP's weights came from, or None for agents without CLIP."""
+        return None if self.encoder is None else self.encoder.sources().get("clip_weights")
 
     def weight_source_values(self) -> dict[str, str]:
         """``{config field: source}`` of every pretrained part (e.g. ``{"clip_weights": "openai"}``)."""

@@ -31,12 +31,8 @@ def run_instruction(
     notes = []
     if not agent.uses_language:
         notes.append(f"{agent.name} ignores language: the instruction cannot change what it does")
-    elif agent.clip is not None:
-        from cliport.models.clip_backbone import CONTEXT_LENGTH, instruction_token_count
-
-        n_tokens = instruction_token_count(lang)
-        if n_tokens > CONTEXT_LENGTH:
-            notes.append(f"the instruction has {n_tokens} CLIP tokens; CLIP reads the first {CONTEXT_LENGTH}")
+    elif agent.encoder is not None and (note := agent.encoder.instruction_note(lang)) is not None:
+        notes.append(note)
     for note in notes:
         print(f"note: {note}", file=sys.stderr)
     os.makedirs(out_dir, exist_ok=True)
@@ -60,6 +56,7 @@ def run_instruction(
         "instruction": lang,
         "agent": agent.name,
         "clip_weights": agent.clip_source(),
+        "weight_sources": agent.weight_source_values(),
         "actions": episode.n_actions,
         "task_reward": round(episode.total_reward, 4),
         "video": video,

@@ -28,6 +28,7 @@ import torch
 from torch import nn
 
 from cliport.errors import UserError
+from cliport.models.encoders import FrozenEncoder
 
 MODEL_NAME = "RN50-quickgelu"
 SENTENCE_DIM = 1024
@@ -254,54 +255,41 @@ def build_clip_model(source: str) -> nn.Module:
     return model
 
 
-class FrozenCLIP(nn.Module):
-    """A frozen CLIP RN50: always in eval mode, no gradients, sentence features cached per instruction."""
+class FrozenCLIP(FrozenEncoder):
+    """A frozen CLIP RN50: image trunk levels (stem, layer1..4) and sentence features, cached per instruction."""
+
+    trunk_channels = TRUNK_CHANNELS
+    sentence_dim = SENTENCE_DIM
 
     def __init__(self, model: nn.Module, source: str) -> None:
         super().__init__()
         self.model = model
         self.source = source
-        self.model.requires_grad_(False)
-        self.model.eval()
-        self._sentence_cache: dict[str, torch.Tensor] = {}
         self._tokenizer = _tokenizer()
         self.register_buffer("mean", torch.tensor(CLIP_MEAN).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor(CLIP_STD).view(1, 3, 1, 1), persistent=False)
+        self.freeze()
 
-    def train(self, mode: bool = True) -> FrozenCLIP:
-        """Stay in eval mode whatever is asked, so batch-norm statistics never drift."""
-        return super().train(False)
+    def sources(self) -> dict[str, str]:
+        return {"clip_weights": self.source}
 
-    @torch.no_grad()
-    def image_features(self, rgb: torch.Tensor) -> list[torch.Tensor]:
-        """Trunk features of RGB images with values in [0, 1].
+    def image_module(self) -> nn.Module:
+        return self.model.visual
 
-        (N, 3, H, W) -> [stem (N, 64, H/4, W/4), layer1 (N, 256, H/4, W/4), layer2 (N, 512, H/8, W/8),
-        layer3 (N, 1024, H/16, W/16), layer4 (N, 2048, H/32, W/32)].
-        """
-        x = (rgb - self.mean) / self.std
-        dtype = next(self.model.visual.parameters()).dtype
-        out = self.model.visual.forward_intermediates(x.to(dtype), intermediates_only=True)
-        return [f.float() for f in out["image_intermediates"]]
+    def instruction_note(self, text: str) -> str | None:
+        n_tokens = _count_tokens(self._tokenizer, text)
+        if n_tokens > CONTEXT_LENGTH:
+            return f"the instruction has {n_tokens} CLIP tokens; CLIP reads the first {CONTEXT_LENGTH}"
+        return None
 
-    @torch.no_grad()
-    def sentence_features(self, texts: list[str]) -> torch.Tensor:
-        """Sentence vectors of `texts`, (B,) -> (B, 1024), each string encoded once and cached."""
-        device = self.mean.device
-        missing = sorted({t for t in texts if t not in self._sentence_cache})
-        if missing:
-            for text in missing:
-                _warn_if_truncated(text, _count_tokens(self._tokenizer, text))
-            tokens = self._tokenizer(missing).to(device)
-            feats = self.model.encode_text(tokens).float()
-            for text, feat in zip(missing, feats, strict=True):
-                self._sentence_cache[text] = feat
-        out = torch.stack([self._sentence_cache[t] for t in texts])
-        return out.to(device)
+    def _trunk(self, rgb: torch.Tensor) -> list[torch.Tensor]:
+        x = ((rgb - self.mean) / self.std).to(self.image_dtype())
+        return self.model.visual.forward_intermediates(x, intermediates_only=True)["image_intermediates"]
 
-    def _apply(self, fn, recurse: bool = True):  # type: ignore[no-untyped-def]
-        self._sentence_cache.clear()
-        return super()._apply(fn, recurse)
+    def _encode_sentences(self, texts: list[str]) -> torch.Tensor:
+        for text in texts:
+            _warn_if_truncated(text, _count_tokens(self._tokenizer, text))
+        return self.model.encode_text(self._tokenizer(texts).to(self.mean.device))
 
 
 @functools.cache

@@ -29,7 +29,7 @@ class PickHead(nn.Module):
         self.input_memory_format = torch.contiguous_format
 
     def forward(self, x: torch.Tensor, sentence: torch.Tensor | None = None) -> torch.Tensor:
-        """Raw (B, 6, H, W), sentence (B, 1024) or None -> logits (B, H, W)."""
+        """Raw (B, 6, H, W), sentence (B, sentence_dim) or None -> logits (B, H, W)."""
         h, w = x.shape[-2:]
         side = max(h, w)
         top, left = (side - h) // 2, (side - w) // 2
@@ -94,7 +94,7 @@ class PlaceHead(nn.Module):
         return crops.contiguous(memory_format=self.input_memory_format)
 
     def forward(self, x: torch.Tensor, pick_pix: torch.Tensor, sentence: torch.Tensor | None = None) -> torch.Tensor:
-        """Raw (B, 6, H, W), pick (B, 2) int (u, v), sentence (B, 1024) or None -> logits (B, R, H, W)."""
+        """Raw (B, 6, H, W), pick (B, 2) int (u, v), sentence (B, sentence_dim) or None -> logits (B, R, H, W)."""
         b, _, h, w = x.shape
         pad = self.crop_size // 2
         padded = F.pad(x, (pad, pad, pad, pad)).contiguous(memory_format=self.input_memory_format)

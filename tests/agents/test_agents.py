@@ -73,7 +73,8 @@ def two_stream() -> PickPlaceAgent:
 
 
 def test_registry_and_default_configs() -> None:
-    assert agent_names() == ["transporter_only", "two_stream"]
+    assert {"transporter_only", "two_stream", "clip_only"} <= set(agent_names())
+    assert agent_names() == sorted(agent_names())
     ts = make_config("two_stream")
     assert isinstance(ts, CLIPConfig)
     assert (ts.n_rotations, ts.crop_size, ts.lr, ts.width, ts.clip_weights) == (36, 64, 1e-4, 1.0, "openai")
@@ -136,7 +137,7 @@ def test_transporter_fits_pick_and_place() -> None:
 
 
 def test_two_stream_frozen_clip_is_unchanged_by_training(two_stream: PickPlaceAgent) -> None:
-    clip = two_stream.clip
+    clip = two_stream.encoder
     assert clip is not None
     before = {k: v.clone() for k, v in clip.state_dict().items()}
     batch = _batch([(RED_BLOCK, GREEN_BOWL, 3, "put the red block in the green bowl")])
@@ -149,8 +150,8 @@ def test_two_stream_frozen_clip_is_unchanged_by_training(two_stream: PickPlaceAg
     after = clip.state_dict()
     assert all(torch.equal(before[k], after[k]) for k in before)  # weights and BN running stats
     # One CLIP instance is shared by the pick, key and query nets.
-    assert two_stream.pick.net.clip is clip
-    assert two_stream.place.key_net.clip is clip and two_stream.place.query_net.clip is clip
+    assert two_stream.pick.net.encoder is clip
+    assert two_stream.place.key_net.encoder is clip and two_stream.place.query_net.encoder is clip
 
 
 def _assert_same_act(a: PickPlaceAgent, b: PickPlaceAgent, instruction: str | None) -> None:

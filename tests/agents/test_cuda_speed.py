@@ -60,8 +60,8 @@ def test_settings_follow_the_device() -> None:
     agent = _agent("two_stream")
     weights = [p for p in agent.pick.net.spatial.parameters() if p.dim() == 4]
     assert all(p.is_contiguous(memory_format=torch.channels_last) for p in weights)
-    assert next(agent.clip.model.visual.parameters()).dtype == torch.bfloat16
-    assert next(agent.clip.model.transformer.parameters()).dtype == torch.float32
+    assert next(agent.encoder.model.visual.parameters()).dtype == torch.bfloat16
+    assert next(agent.encoder.model.transformer.parameters()).dtype == torch.float32
     optimizer = agent.make_optimizer()
     assert optimizer.defaults["fused"]
     batch = {
@@ -76,7 +76,7 @@ def test_settings_follow_the_device() -> None:
     assert np.isfinite(info["loss"])
     agent.to("cpu")
     assert agent.pick.input_memory_format == torch.contiguous_format
-    assert next(agent.clip.model.visual.parameters()).dtype == torch.float32
+    assert next(agent.encoder.model.visual.parameters()).dtype == torch.float32
     assert all(p.is_contiguous() for p in agent.parameters())
 
 
@@ -85,7 +85,7 @@ def test_switches_turn_each_setting_off() -> None:
     agent = make_agent("two_stream", CONFIGS["two_stream"])
     agent.optimize_for_device(channels_last=False, bf16_clip=False, fused_adam=False, act_graphs=False).to("cuda")
     assert agent.pick.input_memory_format == torch.contiguous_format
-    assert next(agent.clip.model.visual.parameters()).dtype == torch.float32
+    assert next(agent.encoder.model.visual.parameters()).dtype == torch.float32
     assert not agent.make_optimizer().defaults["fused"]
     agent.act(_observations(1, 0)[0], INSTRUCTIONS[0])
     assert len(agent._pick_graphs) == 0

@@ -4,7 +4,7 @@ import torch
 from cliport.models.clip_backbone import FrozenCLIP, load_clip
 from cliport.models.heads import PickHead, PlaceHead
 from cliport.models.resnet import ResNet43_8s, ResNet45_10s
-from cliport.models.streams import TransporterNet, TwoStreamNet
+from cliport.models.streams import SemanticNet, TransporterNet, TwoStreamNet
 
 
 def _count(module: torch.nn.Module) -> int:
@@ -50,8 +50,8 @@ def test_two_stream_shapes_and_language_dependence(clip: FrozenCLIP, fusion: str
     # (checked before the stream fusion, whose ReLU may zero a random-init semantic output).
     _, laterals = net.spatial(x)
     trunk = clip.image_features(x[:, :3])
-    semantic = net.semantic(trunk, sentences, laterals)
-    assert not torch.equal(semantic, net.semantic(trunk, sentences.flip(0), laterals))
+    semantic = net.semantic(trunk, sentences, laterals, (64, 96))
+    assert not torch.equal(semantic, net.semantic(trunk, sentences.flip(0), laterals, (64, 96)))
     with pytest.raises(ValueError):
         net(x, None)
 
@@ -63,6 +63,33 @@ def test_two_stream_gradients_reach_every_trainable_parameter(clip: FrozenCLIP) 
     missing = [n for n, p in net.named_parameters() if p.requires_grad and p.grad is None]
     assert missing == []
     assert all(p.grad is None for p in clip.parameters())
+
+
+def test_semantic_net_reads_rgb_and_language_only(clip: FrozenCLIP) -> None:
+    """CLIP-only net: output at the input size, changed by the sentence and the colours, blind to height."""
+    torch.manual_seed(0)
+    net = SemanticNet(clip, 3, width=0.25)
+    x = torch.rand(2, 6, 64, 96)
+    sentences = clip.sentence_features(["pick the red block", "pick the blue block"])
+    out = net(x, sentences)
+    assert out.shape == (2, 3, 64, 96)
+    assert not torch.equal(out, net(x, sentences.flip(0)))
+    other_height = x.clone()
+    other_height[:, 3:] = torch.rand(2, 3, 64, 96)
+    assert torch.equal(out, net(other_height, sentences))
+    assert not hasattr(net, "spatial") and net.semantic.fusions is None
+    out.square().mean().backward()
+    assert [n for n, p in net.named_parameters() if p.requires_grad and p.grad is None] == []
+    with pytest.raises(ValueError):
+        net(x, None)
+
+
+def test_semantic_net_real_size_params(clip: FrozenCLIP) -> None:
+    """The CLIP-only decoder alone: the two-stream net less its spatial stream and lateral fusions."""
+    two = TwoStreamNet(clip, 3, "conv")
+    one = SemanticNet(clip, 3)
+    lateral = sum(p.numel() for p in two.semantic.fusions.parameters())
+    assert _count(one) == _count(two) - _count(two.spatial) - lateral - sum(p.numel() for p in two.fuse.parameters())
 
 
 def test_pick_head_pads_to_square_and_crops_back() -> None:

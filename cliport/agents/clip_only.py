@@ -1,0 +1,33 @@
+"""CLIPort's CLIP-only ablation: the semantic stream alone in pick, key and query (no spatial stream)."""
+
+from __future__ import annotations
+
+from cliport.agents import register_agent
+from cliport.agents.base import PickPlaceAgent
+from cliport.agents.config import CLIPConfig
+from cliport.models.clip_backbone import load_clip
+from cliport.models.encoders import FrozenEncoder
+from cliport.models.heads import PickHead, PlaceHead
+from cliport.models.streams import SemanticNet
+
+PLACE_FEATURES = 3
+
+
+@register_agent("clip_only", CLIPConfig)
+class CLIPOnlyAgent(PickPlaceAgent):
+    """Frozen CLIP RN50 trunk and sentence feature, language-gated U-Net decoders; sees RGB only (no height)."""
+
+    uses_language = True
+    weight_sources = ("clip_weights",)
+    published_columns = {"cliport_table1_test": "clip_only"}
+
+    def __init__(self, config: CLIPConfig, encoder: FrozenEncoder | None = None) -> None:
+        encoder = encoder if encoder is not None else load_clip(config.clip_weights)
+        pick = PickHead(SemanticNet(encoder, 1, config.width))
+        place = PlaceHead(
+            SemanticNet(encoder, PLACE_FEATURES, config.width),
+            SemanticNet(encoder, PLACE_FEATURES, config.width),
+            config.crop_size,
+            config.n_rotations,
+        )
+        super().__init__(config, pick, place, encoder)

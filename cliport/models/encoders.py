@@ -1,0 +1,96 @@
+"""The frozen pretrained part of a semantic stream: an image trunk and a sentence encoder.
+
+Every semantic stream (CLIPort's two-stream nets, the CLIP-only and RN50-BERT ablations) reads a
+:class:`FrozenEncoder`: a multi-scale image trunk and a sentence encoder whose weights never train.
+One instance is shared by the pick, key and query nets of an agent. Subclasses say how many
+channels each trunk level has and how wide the sentence feature is; the trainable decoder is built
+from those numbers.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+#: Strides of the five trunk levels every encoder returns: stem, layer1, layer2, layer3, layer4.
+TRUNK_STRIDES = (4, 4, 8, 16, 32)
+
+
+class FrozenEncoder(nn.Module):
+    """Base of the frozen encoders: always in eval mode, no gradients, sentence features cached.
+
+    Subclasses set ``trunk_channels`` (five ints, one per level of :data:`TRUNK_STRIDES`) and
+    ``sentence_dim``, implement :meth:`_trunk`, :meth:`_encode_sentences`, :meth:`image_module` and
+    :meth:`sources`, and call :meth:`freeze` at the end of ``__init__``.
+    """
+
+    trunk_channels: tuple[int, int, int, int, int]
+    sentence_dim: int
+    #: Width of a trainable Linear each decoder puts on the sentence feature before its language gates
+    #: (RN50-BERT: DistilBERT's 768 -> 1024, as in CLIPort), or None to gate with the feature itself.
+    sentence_projection: int | None = None
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._sentence_cache: dict[str, torch.Tensor] = {}
+
+    def freeze(self) -> None:
+        """No gradients and eval mode for every submodule (batch-norm statistics never drift)."""
+        self.requires_grad_(False)
+        super().train(False)
+
+    def train(self, mode: bool = True) -> FrozenEncoder:
+        """Stay in eval mode whatever is asked."""
+        return super().train(False)
+
+    def sources(self) -> dict[str, str]:
+        """``{agent config field: weight source}`` of each pretrained part, e.g. ``{"clip_weights": "openai"}``."""
+        raise NotImplementedError
+
+    def image_module(self) -> nn.Module:
+        """The image trunk's module (its dtype is switched to bfloat16 on CUDA, see :meth:`set_image_dtype`)."""
+        raise NotImplementedError
+
+    def set_image_dtype(self, dtype: torch.dtype) -> None:
+        """Run the image trunk in ``dtype`` (its features are still returned as float32)."""
+        self.image_module().to(dtype)
+
+    def instruction_note(self, text: str) -> str | None:
+        """A sentence for the user when the encoder cannot read all of ``text`` (e.g. too many tokens)."""
+        return None
+
+    def image_dtype(self) -> torch.dtype:
+        """The dtype the image trunk runs in."""
+        return next(self.image_module().parameters()).dtype
+
+    def _trunk(self, rgb: torch.Tensor) -> list[torch.Tensor]:
+        """RGB (N, 3, H, W) float32 in [0, 1] -> the five trunk levels (normalise, then cast to
+        :meth:`image_dtype`)."""
+        raise NotImplementedError
+
+    def _encode_sentences(self, texts: list[str]) -> torch.Tensor:
+        """Distinct instructions (B,) -> (B, sentence_dim) on the encoder's device."""
+        raise NotImplementedError
+
+    @torch.no_grad()
+    def image_features(self, rgb: torch.Tensor) -> list[torch.Tensor]:
+        """Trunk features of RGB images with values in [0, 1] (H, W multiples of 32).
+
+        (N, 3, H, W) -> five float32 maps (N, trunk_channels[i], H / s, W / s) for the strides s of
+        :data:`TRUNK_STRIDES`.
+        """
+        return [f.float() for f in self._trunk(rgb.float())]
+
+    @torch.no_grad()
+    def sentence_features(self, texts: list[str]) -> torch.Tensor:
+        """Sentence vectors of ``texts``, (B,) -> (B, sentence_dim) float32, each string encoded once."""
+        missing = sorted({t for t in texts if t not in self._sentence_cache})
+        if missing:
+            feats = self._encode_sentences(missing).float()
+            for text, feat in zip(missing, feats, strict=True):
+                self._sentence_cache[text] = feat
+        return torch.stack([self._sentence_cache[t] for t in texts])
+
+    def _apply(self, fn, recurse: bool = True):  # type: ignore[no-untyped-def]
+        self._sentence_cache.clear()
+        return super()._apply(fn, recurse)
