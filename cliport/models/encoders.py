@@ -83,12 +83,12 @@ class FrozenEncoder(nn.Module):
 
     @torch.no_grad()
     def sentence_features(self, texts: list[str]) -> torch.Tensor:
-        """Sentence vectors of ``texts``, (B,) -> (B, sentence_dim) float32, each string encoded once."""
-        missing = sorted({t for t in texts if t not in self._sentence_cache})
-        if missing:
-            feats = self._encode_sentences(missing).float()
-            for text, feat in zip(missing, feats, strict=True):
-                self._sentence_cache[text] = feat
+        """Sentence vectors of ``texts``, (B,) -> (B, sentence_dim) float32, each distinct string encoded once
+        (alone) and cached."""
+        # One string at a time: a feature must not depend on which other strings shared its batch
+        # (batched matrix products round differently), or a reloaded agent would act differently.
+        for text in sorted({t for t in texts if t not in self._sentence_cache}):
+            self._sentence_cache[text] = self._encode_sentences([text])[0].float()
         return torch.stack([self._sentence_cache[t] for t in texts])
 
     def _apply(self, fn, recurse: bool = True):  # type: ignore[no-untyped-def]
