@@ -1,0 +1,33 @@
+import importlib.util
+import pathlib
+
+import pytest
+
+SCRIPT = pathlib.Path(__file__).resolve().parents[2] / "scripts" / "param_counts.py"
+
+
+@pytest.fixture(scope="module")
+def param_counts():
+    spec = importlib.util.spec_from_file_location("param_counts", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_reference_counts_match_the_published_sizes(param_counts) -> None:
+    """DESIGN.md: the reference CLIPort has ~92 M trainable parameters per net, ~277 M in total."""
+    two = param_counts.reference_counts("two_stream")
+    assert 91.5e6 < two["pick"] < 93e6 and 276e6 < two["trainable_total"] < 278e6
+    transporter = param_counts.reference_counts("transporter_only")
+    assert 9.7e6 < transporter["pick"] < 9.9e6
+    # RN50-BERT is CLIPort's net plus a 768 -> 1024 projection of the sentence feature per net.
+    assert param_counts.reference_counts("rn50_bert")["pick"] - two["pick"] == 768 * 1024 + 1024
+    assert param_counts.reference_counts("no_such_agent") is None
+
+
+def test_clip_only_matches_the_reference_within_a_tenth_of_a_percent(param_counts) -> None:
+    counts = param_counts.agent_counts("clip_only")
+    ref = counts["reference"]
+    assert counts["frozen"] > 100e6  # the CLIP RN50, image and text towers
+    for net in ("pick", "key", "query", "trainable_total"):
+        assert abs(counts[net] - ref[net]) / ref[net] < 1e-3, net
