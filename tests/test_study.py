@@ -11,6 +11,7 @@ def test_published_lookup_maps_task_names():
     assert {s["source"].split(",")[0] for s in ravens} == {"Transporter Networks paper", "CLIPort Table 6"}
     assert published_scores("put-block-in-bowl-unseen-colors", "two_stream", 1)[0]["training_steps"] == 200000
     assert published_scores("no-such-task", "two_stream", 1) == []
+    assert [s["score"] for s in published_scores("packing-boxes-pairs-seen-colors", "clip_only", 10)] == [69.7]
 
 
 def test_summary_table_and_plot(tmp_path):

@@ -15,7 +15,15 @@ from typing import Any, NoReturn
 
 from cliport.errors import ConfigError, UserError
 
-__all__ = ["OneLineParser", "UserError", "fail", "parse_key_values", "run_cli"]
+__all__ = [
+    "OneLineParser",
+    "UserError",
+    "add_weight_flags",
+    "fail",
+    "parse_key_values",
+    "run_cli",
+    "weight_overrides",
+]
 
 
 def fail(message: str, code: int = 2) -> NoReturn:
@@ -54,3 +62,26 @@ class OneLineParser(argparse.ArgumentParser):
 
     def error(self, message: str) -> NoReturn:
         fail(f"{self.prog}: {message} (see {self.prog} --help)")
+
+
+
+def weight_fields() -> list[str]:
+    """The pretrained-weight config fields of all registered agents (``clip_weights``, ...), each once."""
+    from cliport.agents import agent_class, agent_names
+
+    return list(dict.fromkeys(f for name in agent_names() for f in agent_class(name).weight_sources))
+
+
+def add_weight_flags(parser: argparse.ArgumentParser) -> None:
+    """One flag per field of :func:`weight_fields` (``--clip-weights``, ...), to load that pretrained part
+    from another source than the one a checkpoint records."""
+    for field in weight_fields():
+        part = field.removesuffix("_weights").upper()
+        flag = "--" + field.replace("_", "-")
+        parser.add_argument(flag, help=f"load the {part} weights from here instead of the source the run recorded")
+
+
+def weight_overrides(args: argparse.Namespace) -> dict[str, str] | None:
+    """``{field: source}`` of the weight flags given (see :func:`add_weight_flags`), or None."""
+    given = {field: getattr(args, field) for field in weight_fields() if getattr(args, field, None)}
+    return given or None

@@ -8,7 +8,7 @@ import json
 import os
 import sys
 
-from cliport.cli.common import OneLineParser, run_cli
+from cliport.cli.common import OneLineParser, add_weight_flags, run_cli, weight_overrides
 from cliport.errors import CheckpointError, ConfigError
 
 
@@ -29,7 +29,7 @@ def _parser() -> tuple[argparse.ArgumentParser, list[str]]:
     parser.add_argument("--seed", type=int, help="with --lang: the scene's seed (default: first seed of --mode)")
     parser.add_argument("--video", action="store_true", help="record a GIF of every evaluation episode")
     parser.add_argument("--out", help="output folder (default: RUN/eval)")
-    parser.add_argument("--clip-weights", help="load CLIP from here instead of the recorded source")
+    add_weight_flags(parser)
     parser.add_argument("--no-progress", action="store_true")
     return parser, dests
 
@@ -79,7 +79,7 @@ def main(argv: list[str] | None = None) -> None:
     names = tasks.resolve(args.task or run_config.task)
     out = args.out or (hub_eval_dir(source) if source.startswith(HF_PREFIX) else run.eval_dir)
     device = resolve_device(config.device)
-    weights = {"clip_weights": args.clip_weights} if args.clip_weights else None
+    weights = weight_overrides(args)
     engines: dict[str, EvalEngine] = {}  # one per task, its workers kept across checkpoints (--checkpoint all)
     env_config = EnvConfig.defaults(camera_scale=camera_scale)
     with contextlib.ExitStack() as stack:

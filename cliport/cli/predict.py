@@ -7,7 +7,7 @@ import json
 import os
 import sys
 
-from cliport.cli.common import OneLineParser, run_cli
+from cliport.cli.common import OneLineParser, add_weight_flags, run_cli, weight_overrides
 from cliport.errors import ConfigError
 
 
@@ -42,7 +42,7 @@ def _parser() -> argparse.ArgumentParser:
         help="workspace in the base frame, metres (default 0.25 0.75 -0.5 0.5 0 0.28; may move, not resize)",
     )
     parser.add_argument("--device", default="auto", help="auto (CUDA when available), cpu, cuda, cuda:1, ...")
-    parser.add_argument("--clip-weights", help="load CLIP from here instead of the recorded source")
+    add_weight_flags(parser)
     parser.add_argument("--out", required=True, help="folder for the heatmap picture, the fused map and the JSON")
     return parser
 
@@ -114,7 +114,7 @@ def main(argv: list[str] | None = None) -> None:
 
 
 def _weights(args: argparse.Namespace) -> dict[str, str] | None:
-    return {"clip_weights": args.clip_weights} if args.clip_weights else None
+    return weight_overrides(args)
 
 
 def entry() -> None:
