@@ -201,3 +201,10 @@ def test_long_instruction_warns_once_with_its_token_count(clip: FrozenCLIP, capl
     warned = [r.getMessage() for r in caplog.records]
     assert len(warned) == 1, warned
     assert f"{instruction_token_count(long)} CLIP tokens" in warned[0] and long in warned[0]
+
+
+def test_default_is_clip_rn50_with_its_widths(clip: FrozenCLIP) -> None:
+    assert clip.model_name == clip_backbone.MODEL_NAME == "RN50-quickgelu"
+    assert clip.trunk_channels == clip_backbone.TRUNK_CHANNELS == (64, 256, 512, 1024, 2048)
+    assert clip.sentence_dim == clip_backbone.SENTENCE_DIM == 1024
+    assert clip.context_length == CONTEXT_LENGTH and clip.vit_blocks is None
