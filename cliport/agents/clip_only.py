@@ -22,7 +22,7 @@ class CLIPOnlyAgent(PickPlaceAgent):
     published_columns = {"cliport_table1_test": "clip_only"}
 
     def __init__(self, config: CLIPConfig, encoder: FrozenEncoder | None = None) -> None:
-        encoder = encoder if encoder is not None else load_clip(config.clip_weights)
+        encoder = encoder if encoder is not None else load_clip(config.clip_weights, config.semantic_encoder)
         pick = PickHead(SemanticNet(encoder, 1, config.width))
         place = PlaceHead(
             SemanticNet(encoder, PLACE_FEATURES, config.width),

@@ -50,8 +50,19 @@ class CLIPConfig(AgentConfig):
     """Settings of agents with a frozen CLIP; as :class:`AgentConfig` plus
 
     Args:
-        clip_weights: "openai" (the published weights: Hugging Face cache, else download), a local RN50
-            weights file, or "random" (seeded; tests and benchmarks only, recorded as such).
+        clip_weights: "openai" (the published weights: Hugging Face cache, else download), another of the
+            model's open_clip pretrained tags, a local weights file of the model, or "random" (seeded; tests
+            and benchmarks only, recorded as such).
+        semantic_encoder: the open_clip model of the semantic stream, any with a text tower whose tokenizer
+            ships with open_clip: "RN50-quickgelu" (CLIPort's), "RN101-quickgelu", "ViT-B-16", ...
     """
 
     clip_weights: str
+    semantic_encoder: str
+
+    def validate(self) -> None:
+        """As :meth:`AgentConfig.validate`, and the encoder name must be an open_clip model we can use."""
+        super().validate()
+        from cliport.models.clip_backbone import check_model_name
+
+        check_model_name(self.semantic_encoder)

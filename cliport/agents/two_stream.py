@@ -22,7 +22,7 @@ class TwoStreamAgent(PickPlaceAgent):
     published_columns = {"cliport_table6_val_ravens": "cliport_wo_lang", "cliport_table1_test": "cliport_single"}
 
     def __init__(self, config: CLIPConfig, encoder: FrozenEncoder | None = None) -> None:
-        encoder = encoder if encoder is not None else load_clip(config.clip_weights)
+        encoder = encoder if encoder is not None else load_clip(config.clip_weights, config.semantic_encoder)
         pick = PickHead(TwoStreamNet(encoder, 1, "add", config.width))
         place = PlaceHead(
             TwoStreamNet(encoder, PLACE_FEATURES, "conv", config.width),

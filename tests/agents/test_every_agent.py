@@ -108,3 +108,27 @@ def test_language_changes_what_language_agents_do(trained) -> None:
             agent.act(scene, None)
     else:
         np.testing.assert_array_equal(a, agent.act(scene, "pack the yellow block in the brown box")["place_heatmap"])
+
+
+def test_semantic_encoder_is_a_setting_recorded_in_checkpoints(tmp_path: Path) -> None:
+    """--semantic-encoder: a ViT CLIP in the CLIP-only agent trains, and its checkpoint rebuilds the same
+    encoder (the name is in the saved config) and acts identically."""
+    torch.manual_seed(0)
+    agent = make_agent("clip_only", {**_config("clip_only"), "semantic_encoder": "ViT-B-16"})
+    assert agent.encoder.trunk_channels == (768,) * 5 and agent.encoder.sentence_dim == 512
+    agent.train_step(_batch(), agent.make_optimizer())
+    path = tmp_path / "vit.pt"
+    agent.save_checkpoint(path)
+    loaded = load_agent(path)
+    assert loaded.config.semantic_encoder == "ViT-B-16"
+    np.testing.assert_array_equal(
+        agent.act(_scene(4), INSTRUCTION)["place_heatmap"], loaded.act(_scene(4), INSTRUCTION)["place_heatmap"]
+    )
+
+
+def test_unknown_semantic_encoder_is_one_clear_error() -> None:
+    from cliport.agents import make_config
+    from cliport.errors import UserError
+
+    with pytest.raises(UserError, match="RN50-quickgelu"):
+        make_config("two_stream", {"semantic_encoder": "RN50-quickgel"})
