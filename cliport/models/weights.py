@@ -11,6 +11,7 @@ from __future__ import annotations
 import os
 import pickle
 import socket
+import struct
 import zipfile
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -57,7 +58,14 @@ def load_state_dict_file(path: Path, error: BadFileError) -> dict[str, torch.Ten
         raise error(path, reason) from None
     except EOFError:
         raise error(path, "the file is empty or truncated") from None
+    except (IndexError, KeyError, UnicodeDecodeError, struct.error) as err:
+        # The weights-only unpickler reads foreign bytes as opcodes; some fail these ways, not as UnpicklingError.
+        if zipfile.is_zipfile(path):
+            raise error(path, f"truncated or corrupt checkpoint ({first_sentence(err)})") from None
+        raise error(path, "not a PyTorch state-dict file (random or foreign bytes)") from None
     except (RuntimeError, OSError, ValueError) as err:
+        if str(err).startswith("Invalid magic number"):  # neither a zip archive nor torch's legacy format
+            raise error(path, "not a PyTorch state-dict file (random or foreign bytes)") from None
         raise error(path, f"truncated or corrupt checkpoint ({first_sentence(err)})") from None
     if isinstance(state, Mapping) and isinstance(state.get("state_dict"), Mapping):
         state = state["state_dict"]
