@@ -422,9 +422,11 @@ def build_distilbert(source: str) -> tuple[nn.Module, Any]:
     try:
         from transformers import DistilBertModel, DistilBertTokenizerFast
 
-        # Fills the cache with what the model and the tokenizer need; read back below through the checked path.
-        DistilBertModel.from_pretrained(source)
-        DistilBertTokenizerFast.from_pretrained(source)
+        # Fills the cache with what the model and the tokenizer need (with the hub's download bars); read back
+        # below through the checked path, which reports what the loading report would.
+        with _quiet_transformers():
+            DistilBertModel.from_pretrained(source)
+            DistilBertTokenizerFast.from_pretrained(source)
     except Exception as err:  # hub and transformers raise assorted errors for failed downloads and foreign repos
         raise BERTWeightsUnavailable(_bert_offline_help(source, weights.first_sentence(err) + ".")) from err
     cached = _cached_bert_folder(source)

@@ -59,7 +59,7 @@ def _bert_folder(root: Path, head: bool = False) -> Path:
     folder = root / ("bert-mlm" if head else "bert")
     folder.mkdir()
     (folder / "vocab.txt").write_text("\n".join(VOCAB) + "\n")
-    tokenizer = DistilBertTokenizerFast.from_pretrained(str(folder))
+    tokenizer = DistilBertTokenizerFast.from_pretrained(str(folder), model_max_length=512)  # as distilbert's
     config = DistilBertConfig(vocab_size=len(VOCAB), dim=32, n_layers=2, n_heads=2, hidden_dim=64)
     torch.manual_seed(7)
     model = (DistilBertForMaskedLM if head else DistilBertModel)(config)
@@ -148,9 +148,17 @@ def test_frozen_stays_in_eval_mode_without_grads(encoder: FrozenRN50BERT) -> Non
     assert not any(p.requires_grad for p in encoder.parameters())
 
 
-def test_random_init_is_reproducible(encoder: FrozenRN50BERT) -> None:
+def test_random_init_is_reproducible_and_quiet(
+    encoder: FrozenRN50BERT, caplog: pytest.LogCaptureFixture, capfd: pytest.CaptureFixture[str]
+) -> None:
     torch.manual_seed(999)  # the global seed must not matter
-    again = load_rn50_bert("random", "random")
+    capfd.readouterr()
+    with caplog.at_level(logging.DEBUG), warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        again = load_rn50_bert("random", "random")
+    assert [r.getMessage() for r in caplog.records if r.levelno >= logging.INFO] == []
+    assert [str(w.message) for w in caught] == []
+    assert capfd.readouterr() == ("", "")
     pairs = list(zip(encoder.state_dict().items(), again.state_dict().values(), strict=True))
     assert len(pairs) > 100
     for (k, v), w in pairs:
@@ -277,6 +285,25 @@ def test_bert_folder_loads_and_encodes(bert_folder: Path, encoder: FrozenRN50BER
     together = enc._encode_sentences(["pack", "push the red pile , pack the box ."])
     alone = torch.cat([enc._encode_sentences(["pack"]), enc._encode_sentences(["push the red pile , pack the box ."])])
     assert torch.allclose(together, alone, atol=1e-5, rtol=0)
+
+
+def test_long_instruction_with_a_real_tokenizer(
+    bert_folder: Path, encoder: FrozenRN50BERT, caplog: pytest.LogCaptureFixture, capfd: pytest.CaptureFixture[str]
+) -> None:
+    """Only this module's one warning: not transformers' own "Token indices sequence length" one."""
+    model, tokenizer = build_distilbert(str(bert_folder))
+    enc = FrozenRN50BERT(encoder.trunk, model, tokenizer, "random", str(bert_folder))
+    long = "pack the " + "red " * 600 + "box"
+    assert enc.count_tokens(long) == 605 and "605 DistilBERT tokens" in (enc.instruction_note(long) or "")
+    capfd.readouterr()
+    with caplog.at_level(logging.WARNING):
+        feats = enc.sentence_features([long, "pack the box"])
+        enc._sentence_cache.clear()  # encoding it again must not repeat the warning
+        enc.sentence_features([long])
+    assert feats.shape == (2, 32) and torch.isfinite(feats).all()
+    warned = [r.getMessage() for r in caplog.records]
+    assert len(warned) == 1 and "605 DistilBERT tokens" in warned[0], warned
+    assert capfd.readouterr().err == ""  # transformers logs to its own stderr handler, not through caplog
 
 
 def test_masked_lm_checkpoint_loads_quietly(
