@@ -163,9 +163,12 @@ def _rn50_offline_help(source: str, reason: str) -> str:
 
 
 def _resnet50() -> nn.Module:
+    """torchvision's resnet50, seeded (seed 0) without touching the caller's random state."""
     from torchvision.models import resnet50
 
-    return resnet50(weights=None)
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(RANDOM_SEED)
+        return resnet50(weights=None)
 
 
 def _load_trunk_state(trunk: ResNet50Trunk, path: Path, state: Mapping[str, torch.Tensor]) -> ResNet50Trunk:
@@ -187,9 +190,7 @@ def build_rn50_trunk(source: str) -> ResNet50Trunk:
     file, the offline options when "imagenet" cannot be had).
     """
     if source == "random":
-        with torch.random.fork_rng(devices=[]):
-            torch.manual_seed(RANDOM_SEED)
-            trunk = ResNet50Trunk(_resnet50())
+        trunk = ResNet50Trunk(_resnet50())
         weights.calibrate_batch_norm(trunk, trunk, seed=RANDOM_SEED)
         return trunk.eval()
     if source == "imagenet":

@@ -205,6 +205,41 @@ def test_resnet_state_dict_round_trip(
     assert not trunk.training
 
 
+@pytest.mark.parametrize("download", ["works", "fails"])
+def test_imagenet_download_path(
+    encoder: FrozenRN50BERT, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, download: str
+) -> None:
+    """Not cached, host reachable: torchvision's download is used, checked, and its failure is a user error."""
+    state = _perturbed_resnet_state(encoder)
+
+    class FakeWeights:
+        url = "https://download.pytorch.org/models/resnet50-0676ba61.pth"
+
+        def get_state_dict(self, progress: bool = True) -> dict[str, torch.Tensor]:
+            assert progress is False
+            if download == "fails":
+                raise OSError("HTTP Error 503: Service Unavailable. Try again later")
+            return state
+
+    monkeypatch.setattr(torch.hub, "get_dir", lambda: str(tmp_path / "hub"))
+    monkeypatch.setattr(rn50_bert, "_download_reachable", lambda timeout_s=3.0: True)
+    monkeypatch.setattr(rn50_bert, "_imagenet_weights", FakeWeights)
+    if download == "works":
+        _assert_trunk_holds(build_rn50_trunk("imagenet"), state)
+        return
+    with pytest.raises(RN50WeightsUnavailable) as err:
+        build_rn50_trunk("imagenet")
+    assert "HTTP Error 503" in str(err.value) and "rn50_weights = 'random'" in str(err.value)
+
+
+def test_loading_a_file_leaves_the_global_random_state_alone(encoder: FrozenRN50BERT, tmp_path: Path) -> None:
+    path = tmp_path / "resnet50.pt"
+    torch.save(encoder.trunk.state_dict(), path)
+    before = torch.random.get_rng_state()
+    build_rn50_trunk(str(path))
+    assert torch.equal(torch.random.get_rng_state(), before)
+
+
 def test_imagenet_fails_fast_and_clearly_offline(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(torch.hub, "get_dir", lambda: str(tmp_path / "empty-hub"))
     monkeypatch.setattr(rn50_bert, "_download_reachable", lambda timeout_s=3.0: False)
