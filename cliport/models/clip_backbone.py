@@ -47,8 +47,6 @@ import importlib.util
 import json
 import logging
 import os
-import pickle
-import socket
 import zipfile
 from collections.abc import Iterator, Mapping
 from pathlib import Path
@@ -59,6 +57,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from cliport.errors import UserError
+from cliport.models import weights
 from cliport.models.encoders import FrozenEncoder
 
 #: The default model (``--semantic-encoder``): CLIPort's CLIP RN50.
@@ -75,7 +74,6 @@ RANDOM_SEED = 0
 CONTEXT_LENGTH = 77
 #: The strides the ViT adapter resamples its four chosen blocks' patch tokens to (layer1..layer4).
 _VIT_LEVEL_STRIDES = (4, 8, 16, 32)
-_HUB_HOST = ("huggingface.co", 443)
 _RANDOM_INIT_WARNING = "No pretrained weights loaded for model"
 
 log = logging.getLogger(__name__)
@@ -247,14 +245,8 @@ def _quiet_open_clip(expect_random_init: bool = False) -> Iterator[None]:
 
 
 def _hub_reachable(timeout_s: float = 3.0) -> bool:
-    """Whether the Hugging Face hub answers a TCP connection within `timeout_s` seconds."""
-    if os.environ.get("HF_HUB_OFFLINE", "0") not in ("0", "", "false", "False"):
-        return False
-    try:
-        with socket.create_connection(_HUB_HOST, timeout=timeout_s):
-            return True
-    except OSError:
-        return False
+    """Whether the Hugging Face hub answers a TCP connection within `timeout_s` seconds (False if HF_HUB_OFFLINE)."""
+    return weights.hf_hub_reachable(timeout_s)
 
 
 def _cached_openai_file() -> str | None:
@@ -287,41 +279,12 @@ def _bad_file(path: Path, reason: str) -> CLIPWeightsUnavailable:
     return CLIPWeightsUnavailable(f"Cannot load CLIP weights from {path}: {reason}")
 
 
-def _first_sentence(err: BaseException, limit: int = 120) -> str:
-    text = str(err).strip().split("\n")[0].split(". ")[0].rstrip(".")
-    return text if len(text) <= limit else text[: limit - 3] + "..."
+_first_sentence = weights.first_sentence  # the name build_clip_model uses
 
 
 def _load_state_dict_file(path: Path) -> dict[str, torch.Tensor]:
     """The tensors of a state-dict file; CLIPWeightsUnavailable naming the file if it is not one."""
-    if path.suffix == ".safetensors":
-        from safetensors import SafetensorError
-        from safetensors.torch import load_file
-
-        try:
-            return load_file(str(path))
-        except (SafetensorError, OSError) as err:
-            raise _bad_file(path, f"not a valid safetensors file ({_first_sentence(err)})") from None
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except pickle.UnpicklingError:
-        # torch's message advises weights_only=False, i.e. running the file's code; never pass that on.
-        if zipfile.is_zipfile(path):
-            reason = "it holds pickled Python objects besides tensors (a whole model?); save model.state_dict()"
-        else:
-            reason = "not a PyTorch state-dict file (random or foreign bytes)"
-        raise _bad_file(path, reason) from None
-    except EOFError:
-        raise _bad_file(path, "the file is empty or truncated") from None
-    except (RuntimeError, OSError, ValueError) as err:
-        raise _bad_file(path, f"truncated or corrupt checkpoint ({_first_sentence(err)})") from None
-    if isinstance(state, Mapping) and isinstance(state.get("state_dict"), Mapping):
-        state = state["state_dict"]
-    if not isinstance(state, Mapping) or not all(
-        isinstance(k, str) and isinstance(v, torch.Tensor) for k, v in state.items()
-    ):
-        raise _bad_file(path, f"it holds a {type(state).__name__}, not a state dict of named tensors")
-    return {k.removeprefix("module."): v for k, v in state.items()}
+    return weights.load_state_dict_file(path, _bad_file)
 
 
 def _check_architecture(
@@ -331,20 +294,7 @@ def _check_architecture(
     model_name: str = MODEL_NAME,
 ) -> None:
     """CLIPWeightsUnavailable with a short account if ``state`` is not a state dict of ``expected``'s model."""
-    missing = [k for k in expected if k not in state]
-    unexpected = [k for k in state if k not in expected]
-    mismatched = [k for k in expected if k in state and tuple(state[k].shape) != tuple(expected[k].shape)]
-    problems = []
-    if missing:
-        problems.append(f"{len(missing)} of its {len(expected)} tensors missing (e.g. {missing[0]})")
-    if unexpected:
-        problems.append(f"{len(unexpected)} unexpected (e.g. {unexpected[0]})")
-    if mismatched:
-        k = mismatched[0]
-        shapes = f"{tuple(state[k].shape)} instead of {tuple(expected[k].shape)}"
-        problems.append(f"{len(mismatched)} with other shapes (e.g. {k}: {shapes})")
-    if problems:
-        raise _bad_file(path, f"not a state dict of open_clip {model_name}: {'; '.join(problems)}")
+    weights.check_architecture(path, state, expected, f"open_clip {model_name}", _bad_file)
 
 
 def _is_torchscript(path: Path) -> bool:
@@ -361,20 +311,15 @@ def calibrate_batch_norm(model: nn.Module, n_images: int = 4, size: int = 128) -
     Freshly initialised batch norms hold mean 0 / variance 1, under which the random trunk's
     activations shrink about a thousandfold by layer4, so a random "semantic stream" carries almost
     no signal. One pass in training mode over normalised noise gives every layer unit-scale inputs,
-    as trained weights do; the result is deterministic.
+    as trained weights do; the result is deterministic (see :func:`cliport.models.weights.calibrate_batch_norm`).
     """
-    norms = [m for m in model.visual.modules() if isinstance(m, nn.BatchNorm2d)]
-    for m in norms:
-        m.reset_running_stats()
-        m.momentum = None  # cumulative average: one batch sets the statistics exactly
-    generator = torch.Generator().manual_seed(RANDOM_SEED)
-    images = torch.randn(n_images, 3, size, size, generator=generator)
-    model.visual.train()
-    with torch.no_grad():
-        model.visual.forward_intermediates(images, intermediates_only=True)
-    model.visual.eval()
-    for m in norms:
-        m.momentum = 0.1
+    weights.calibrate_batch_norm(
+        model.visual,
+        lambda images: model.visual.forward_intermediates(images, intermediates_only=True),
+        n_images=n_images,
+        size=size,
+        seed=RANDOM_SEED,
+    )
 
 
 def _create_model(model_name: str, pretrained: str | None = None) -> nn.Module:
