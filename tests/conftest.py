@@ -70,3 +70,45 @@ def _synthetic_dataset(root: str, n_episodes: int = 3) -> str:
 def make_synthetic_dataset():
     """A function (root, n_episodes) writing place-red-in-green episodes with markers at the action pixels."""
     return _synthetic_dataset
+
+
+#: Kinds of broken weight files every weights loader must turn into one line, and a phrase of that line.
+BAD_WEIGHT_FILES = {
+    "random-bytes": "not a PyTorch state-dict file",
+    "truncated": "truncated or corrupt",
+    "empty": "empty or truncated",
+    "fake-safetensors": "not a valid safetensors file",
+    "pickled-module": "pickled Python objects",
+    "not-a-dict": "holds a list",
+}
+
+
+def write_bad_weight_file(folder, kind: str, stem: str):
+    """Write a broken weights file of one of the :data:`BAD_WEIGHT_FILES` kinds into ``folder``; returns
+    its path and the phrase its error line must contain."""
+    import pathlib
+
+    import torch
+
+    folder = pathlib.Path(folder)
+    suffix = {"fake-safetensors": ".safetensors", "empty": ".pth"}.get(kind, ".pt")
+    path = folder / f"{stem}{suffix}"
+    if kind in ("random-bytes", "fake-safetensors"):
+        path.write_bytes(os.urandom(4096))
+    elif kind == "truncated":
+        torch.save({"w": torch.zeros(1000)}, path)
+        path.write_bytes(path.read_bytes()[:2000])
+    elif kind == "empty":
+        path.write_bytes(b"")
+    elif kind == "pickled-module":
+        torch.save(torch.nn.Linear(2, 2), path)
+    else:
+        assert kind == "not-a-dict", kind
+        torch.save([torch.zeros(2)], path)
+    return path, BAD_WEIGHT_FILES[kind]
+
+
+@pytest.fixture
+def bad_weight_file(tmp_path):
+    """``bad_weight_file(kind, stem)`` -> (path, phrase): see :func:`write_bad_weight_file`."""
+    return lambda kind, stem: write_bad_weight_file(tmp_path, kind, stem)

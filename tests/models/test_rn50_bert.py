@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from conftest import BAD_WEIGHT_FILES
 from safetensors.torch import save_file
 
 from cliport.errors import UserError
@@ -253,24 +254,7 @@ def test_imagenet_fails_fast_and_clearly_offline(tmp_path: Path, monkeypatch: py
 
 
 def _bad_resnet_file(tmp_path: Path, kind: str, encoder: FrozenRN50BERT) -> tuple[Path, str]:
-    """A bad weights file of the given kind and a phrase its error message must contain."""
-    if kind == "random-bytes":
-        path = tmp_path / "resnet50.pt"
-        path.write_bytes(os.urandom(4096))
-        return path, "not a PyTorch state-dict file"
-    if kind == "truncated":
-        path = tmp_path / "resnet50.pt"
-        torch.save({"w": torch.zeros(1000)}, path)
-        path.write_bytes(path.read_bytes()[:2000])
-        return path, "truncated or corrupt"
-    if kind == "empty":
-        path = tmp_path / "resnet50.pth"
-        path.write_bytes(b"")
-        return path, "empty or truncated"
-    if kind == "fake-safetensors":
-        path = tmp_path / "resnet50.safetensors"
-        path.write_bytes(os.urandom(4096))
-        return path, "not a valid safetensors file"
+    """A state dict of another model, or the trunk's with one wrong shape, and a phrase its error must contain."""
     if kind == "other-model":
         path = tmp_path / "resnet50.safetensors"
         save_file(torch.nn.Linear(2, 2).state_dict(), str(path))
@@ -283,11 +267,14 @@ def _bad_resnet_file(tmp_path: Path, kind: str, encoder: FrozenRN50BERT) -> tupl
     return path, "layer4.0.conv2.weight: (512, 512, 1, 1) instead of (512, 512, 3, 3)"
 
 
-@pytest.mark.parametrize(
-    "kind", ["random-bytes", "truncated", "empty", "fake-safetensors", "other-model", "wrong-shape"]
-)
-def test_bad_resnet_file_is_one_clear_line(encoder: FrozenRN50BERT, tmp_path: Path, kind: str) -> None:
-    path, reason = _bad_resnet_file(tmp_path, kind, encoder)
+@pytest.mark.parametrize("kind", [*BAD_WEIGHT_FILES, "other-model", "wrong-shape"])
+def test_bad_resnet_file_is_one_clear_line(
+    encoder: FrozenRN50BERT, tmp_path: Path, kind: str, bad_weight_file
+) -> None:
+    if kind in BAD_WEIGHT_FILES:
+        path, reason = bad_weight_file(kind, "resnet50")
+    else:
+        path, reason = _bad_resnet_file(tmp_path, kind, encoder)
     with pytest.raises(RN50WeightsUnavailable) as err:
         build_rn50_trunk(str(path))
     message = str(err.value)
