@@ -110,5 +110,6 @@ def write_bad_weight_file(folder, kind: str, stem: str):
 
 @pytest.fixture
 def bad_weight_file(tmp_path):
-    """``bad_weight_file(kind, stem)`` -> (path, phrase): see :func:`write_bad_weight_file`."""
-    return lambda kind, stem: write_bad_weight_file(tmp_path, kind, stem)
+    """``bad_weight_file(kind, stem)`` -> (path, phrase) for a kind of :data:`BAD_WEIGHT_FILES` (see
+    :func:`write_bad_weight_file`), None for any other kind (a model-specific one the test writes itself)."""
+    return lambda kind, stem: write_bad_weight_file(tmp_path, kind, stem) if kind in BAD_WEIGHT_FILES else None
