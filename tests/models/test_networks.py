@@ -77,6 +77,9 @@ def test_semantic_net_reads_rgb_and_language_only(clip: FrozenCLIP) -> None:
     other_height = x.clone()
     other_height[:, 3:] = torch.rand(2, 3, 64, 96)
     assert torch.equal(out, net(other_height, sentences))
+    other_rgb = x.clone()
+    other_rgb[:, :3] = torch.rand(2, 3, 64, 96)
+    assert not torch.allclose(out, net(other_rgb, sentences))
     assert not hasattr(net, "spatial") and net.semantic.fusions is None
     out.square().mean().backward()
     assert [n for n, p in net.named_parameters() if p.requires_grad and p.grad is None] == []
