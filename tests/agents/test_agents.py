@@ -73,7 +73,7 @@ def two_stream() -> PickPlaceAgent:
 
 
 def test_registry_and_default_configs() -> None:
-    assert {"transporter_only", "two_stream", "clip_only"} <= set(agent_names())
+    assert {"transporter_only", "two_stream", "clip_only", "rn50_bert"} <= set(agent_names())
     assert agent_names() == sorted(agent_names())
     ts = make_config("two_stream")
     assert isinstance(ts, CLIPConfig)
@@ -82,6 +82,11 @@ def test_registry_and_default_configs() -> None:
     assert type(to) is AgentConfig and (to.n_rotations, to.crop_size) == (36, 64)
     assert agent_class("two_stream").uses_language and not agent_class("transporter_only").uses_language
     assert agent_class("two_stream").weight_sources == ("clip_weights",)
+    assert agent_class("rn50_bert").weight_sources == ("rn50_weights", "bert_weights")
+    assert agent_class("clip_only").uses_language and agent_class("rn50_bert").uses_language
+    rb = make_config("rn50_bert")
+    assert (rb.rn50_weights, rb.bert_weights, rb.width) == ("imagenet", "distilbert-base-uncased", 1.0)
+    assert make_config("clip_only").semantic_encoder == "RN50-quickgelu"
     with pytest.raises(UnknownNameError, match="unknown agent 'two_steam' \\(did you mean 'two_stream'\\?\\)"):
         make_agent("two_steam")
     with pytest.raises(ConfigError, match="unknown AgentConfig key\\(s\\) 'n_rotation' \\(did you mean 'n_rotations'"):
