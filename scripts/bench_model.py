@@ -1,7 +1,8 @@
 """Benchmark the agents: training samples/s, act() latency and peak memory, as JSON.
 
 Example: python scripts/bench_model.py --agent two_stream --device cuda --amp bf16
-Random inputs and random-initialised CLIP; timings exclude one warm-up step. `--flops` also counts the
+Random inputs and random-initialised pretrained parts (CLIP, ResNet-50, DistilBERT); timings exclude one
+warm-up step. `--flops` also counts the
 floating-point operations of one training sample and one act() (convolutions and matrix products, as
 torch.utils.flop_counter counts them; the FFT place correlation is not counted). `--profile` adds the 15
 operations with the most self time (CUDA time on a GPU, CPU time on a CPU) over one training step and
@@ -237,6 +238,7 @@ def main() -> None:
         "torch_threads": torch.get_num_threads(),
         "amp": args.amp,
         "clip_weights": "random",
+        "pretrained_weights": "random (every pretrained part: CLIP, ResNet-50, DistilBERT)",
         "width": args.width,
         "batch_sizes": args.batch_sizes,
         "steps": args.steps,
