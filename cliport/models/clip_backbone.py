@@ -76,8 +76,6 @@ CONTEXT_LENGTH = 77
 _VIT_LEVEL_STRIDES = (4, 8, 16, 32)
 _RANDOM_INIT_WARNING = "No pretrained weights loaded for model"
 
-log = logging.getLogger(__name__)
-_warned_long_instructions: set[str] = set()
 
 
 class CLIPWeightsUnavailable(UserError, RuntimeError):
@@ -579,8 +577,6 @@ class FrozenCLIP(FrozenEncoder):
         return [levels[0], *levels]
 
     def _encode_sentences(self, texts: list[str]) -> torch.Tensor:
-        for text in texts:
-            _warn_if_truncated(text, _count_tokens(self._tokenizer, text), self.context_length)
         return self.model.encode_text(self._tokenizer(texts).to(self.mean.device))
 
 
@@ -611,17 +607,6 @@ def instruction_token_count(text: str, model_name: str = MODEL_NAME) -> int:
     """Tokens of an instruction for ``model_name``, special tokens included; the default reads
     :data:`CONTEXT_LENGTH`, others :attr:`FrozenCLIP.context_length`."""
     return _count_tokens(_tokenizer(model_name), text)
-
-
-def _warn_if_truncated(text: str, n_tokens: int, context_length: int = CONTEXT_LENGTH) -> None:
-    if n_tokens > context_length and text not in _warned_long_instructions:
-        _warned_long_instructions.add(text)
-        log.warning(
-            "instruction has %d CLIP tokens but CLIP reads only %d, the rest is ignored: %r",
-            n_tokens,
-            context_length,
-            text,
-        )
 
 
 def load_clip(source: str, model_name: str = MODEL_NAME) -> FrozenCLIP:

@@ -9,8 +9,14 @@ from those numbers.
 
 from __future__ import annotations
 
+import logging
+
 import torch
 from torch import nn
+
+log = logging.getLogger(__name__)
+# (encoder class, instruction) pairs already warned about, so that a long instruction is named once.
+_warned: set[tuple[str, str]] = set()
 
 #: Strides of the five trunk levels every encoder returns: stem, layer1, layer2, layer3, layer4.
 TRUNK_STRIDES = (4, 4, 8, 16, 32)
@@ -56,7 +62,8 @@ class FrozenEncoder(nn.Module):
         self.image_module().to(dtype)
 
     def instruction_note(self, text: str) -> str | None:
-        """A sentence for the user when the encoder cannot read all of ``text`` (e.g. too many tokens)."""
+        """A sentence for the user when the encoder cannot read all of ``text`` (e.g. too many tokens);
+        :meth:`sentence_features` logs it once per instruction as a warning."""
         return None
 
     def image_dtype(self) -> torch.dtype:
@@ -88,6 +95,10 @@ class FrozenEncoder(nn.Module):
         # One string at a time: a feature must not depend on which other strings shared its batch
         # (batched matrix products round differently), or a reloaded agent would act differently.
         for text in sorted({t for t in texts if t not in self._sentence_cache}):
+            note = self.instruction_note(text)
+            if note is not None and (type(self).__name__, text) not in _warned:
+                _warned.add((type(self).__name__, text))
+                log.warning("%s, the rest is ignored: %r", note, text)
             self._sentence_cache[text] = self._encode_sentences([text])[0].float()
         return torch.stack([self._sentence_cache[t] for t in texts])
 

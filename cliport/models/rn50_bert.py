@@ -84,8 +84,6 @@ _VOCAB_FILES = ("vocab.txt", "tokenizer.json")
 # A Hugging Face repo id: "name" or "owner/name", letters, digits and - _ . only.
 _REPO_ID = re.compile(r"^[A-Za-z0-9][\w.-]*(/[\w.-]+)?$")
 
-log = logging.getLogger(__name__)
-_warned_long_instructions: set[str] = set()
 
 
 class RN50WeightsUnavailable(UserError, RuntimeError):
@@ -484,16 +482,6 @@ class FrozenRN50BERT(FrozenEncoder):
 
     def _encode_sentences(self, texts: list[str]) -> torch.Tensor:
         """Instructions (B,) -> (B, 768): mean of DistilBERT's last hidden states over each one's real tokens."""
-        for text in texts:
-            n_tokens = self.count_tokens(text)
-            if n_tokens > self.max_tokens and text not in _warned_long_instructions:
-                _warned_long_instructions.add(text)
-                log.warning(
-                    "instruction has %d DistilBERT tokens but DistilBERT reads only %d, the rest is ignored: %r",
-                    n_tokens,
-                    self.max_tokens,
-                    text,
-                )
         batch = self.tokenizer(texts, padding=True, truncation=True, max_length=self.max_tokens, return_tensors="pt")
         device = self.mean.device
         ids = batch["input_ids"].to(device)
