@@ -31,4 +31,3 @@ class TwoStreamAgent(PickPlaceAgent):
             config.n_rotations,
         )
         super().__init__(config, pick, place, encoder)
-

@@ -64,7 +64,6 @@ class OneLineParser(argparse.ArgumentParser):
         fail(f"{self.prog}: {message} (see {self.prog} --help)")
 
 
-
 def weight_fields() -> list[str]:
     """The pretrained-weight config fields of all registered agents (``clip_weights``, ...), each once."""
     from cliport.agents import agent_class, agent_names

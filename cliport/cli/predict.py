@@ -95,7 +95,7 @@ def main(argv: list[str] | None = None) -> None:
     else:
         color, height = _read_heightmap(*args.heightmap)
         obs = {"color": color, "height": height}
-    predictor = Predictor(args.run_dir, args.checkpoint, args.device, bounds, _weights(args))
+    predictor = Predictor(args.run_dir, args.checkpoint, args.device, bounds, weight_overrides(args))
     prediction = predictor.predict_heightmap(obs["color"], obs["height"], args.lang, notes)
     for note in prediction.notes:
         print(f"note: {note}", file=sys.stderr)
@@ -111,10 +111,6 @@ def main(argv: list[str] | None = None) -> None:
         np.save(os.path.join(args.out, f"{stem}-height.npy"), prediction.obs["height"])
     write_json(os.path.join(args.out, f"{stem}.json"), result)
     print(json.dumps(result))
-
-
-def _weights(args: argparse.Namespace) -> dict[str, str] | None:
-    return weight_overrides(args)
 
 
 def entry() -> None:
