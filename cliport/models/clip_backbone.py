@@ -247,11 +247,6 @@ def _hub_reachable(timeout_s: float = 3.0) -> bool:
     return weights.hf_hub_reachable(timeout_s)
 
 
-def _cached_openai_file() -> str | None:
-    """Path of open_clip's OpenAI RN50 weights in the local Hugging Face cache, if they are there."""
-    return _cached_pretrained_file(MODEL_NAME, "openai")
-
-
 def _cached_pretrained_file(model_name: str, tag: str) -> str | None:
     """Path of a pretrained tag's weights in the local Hugging Face cache, if they are there."""
     from huggingface_hub import try_to_load_from_cache
@@ -266,18 +261,8 @@ def _cached_pretrained_file(model_name: str, tag: str) -> str | None:
     return None
 
 
-def _cached_weights(model_name: str, tag: str) -> str | None:
-    # The default keeps its own seam (_cached_openai_file), which tests replace.
-    if (model_name, tag) == (MODEL_NAME, "openai"):
-        return _cached_openai_file()
-    return _cached_pretrained_file(model_name, tag)
-
-
 def _bad_file(path: Path, reason: str) -> CLIPWeightsUnavailable:
     return CLIPWeightsUnavailable(f"Cannot load CLIP weights from {path}: {reason}")
-
-
-_first_sentence = weights.first_sentence  # the name build_clip_model uses
 
 
 def _load_state_dict_file(path: Path) -> dict[str, torch.Tensor]:
@@ -333,7 +318,7 @@ def _create_model(model_name: str, pretrained: str | None = None) -> nn.Module:
             raise
         raise TokenizerUnavailable(
             f"Cannot build {model_name}: its text tower's config ({hf_model}) comes from the Hugging Face hub, "
-            f"which is unreachable and not in the local cache (HF_HOME) ({_first_sentence(err)})"
+            f"which is unreachable and not in the local cache (HF_HOME) ({weights.first_sentence(err)})"
         ) from None
 
 
@@ -376,7 +361,7 @@ def build_clip_model(source: str, model_name: str = MODEL_NAME) -> nn.Module:
         return _set_normalisation(model, model_name, None)
     tags = _pretrained_tags(model_name)
     if source in tags:
-        cached = _cached_weights(model_name, source)
+        cached = _cached_pretrained_file(model_name, source)
         if cached is not None:
             with _quiet_open_clip():
                 return _set_normalisation(_create_model(model_name, cached), model_name, source)
@@ -404,7 +389,8 @@ def build_clip_model(source: str, model_name: str = MODEL_NAME) -> nn.Module:
             with _quiet_open_clip():
                 model = open_clip.load_openai_model(str(path), precision="fp32", device="cpu")
         except Exception as err:  # TorchScript and open_clip raise assorted errors for a broken archive
-            raise _bad_file(path, f"not a loadable OpenAI TorchScript {model_name} ({_first_sentence(err)})") from None
+            reason = f"not a loadable OpenAI TorchScript {model_name} ({weights.first_sentence(err)})"
+            raise _bad_file(path, reason) from None
         # load_openai_model builds whatever architecture the file holds: check that it is model_name's
         # (against a random model, so open_clip's "initialized randomly" is expected there).
         with _quiet_open_clip(expect_random_init=True):
@@ -591,8 +577,8 @@ def _tokenizer(model_name: str = MODEL_NAME) -> Any:
         except Exception as err:  # transformers/huggingface_hub raise OSError, ValueError, ... offline
             raise TokenizerUnavailable(
                 f"Cannot load the tokenizer of {model_name}: it comes from the Hugging Face hub, which is "
-                f"unreachable and not in the local cache (HF_HOME) ({_first_sentence(err)}); fill the cache on a "
-                "machine with network, or choose a model with open_clip's own tokenizer (e.g. RN50-quickgelu)"
+                f"unreachable and not in the local cache (HF_HOME) ({weights.first_sentence(err)}); fill the cache "
+                "on a machine with network, or choose a model with open_clip's own tokenizer (e.g. RN50-quickgelu)"
             ) from None
 
 

@@ -49,7 +49,7 @@ def test_state_dict_file_round_trip(clip: FrozenCLIP, tmp_path: Path, suffix: st
 
 
 def test_openai_fails_fast_and_clearly_offline(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(clip_backbone, "_cached_openai_file", lambda: None)
+    monkeypatch.setattr(clip_backbone, "_cached_pretrained_file", lambda model_name, tag: None)
     monkeypatch.setattr(clip_backbone, "_hub_reachable", lambda timeout_s=3.0: False)
     start = time.monotonic()
     with pytest.raises(CLIPWeightsUnavailable) as err:
