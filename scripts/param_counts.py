@@ -68,8 +68,8 @@ def _two_stream(out: int, text_fc: bool = False) -> int:
 
 #: The reference agent behind each of our agents, and its nets' trainable counts (pick, key, query).
 REFERENCE = {
-    "transporter_only": ("transporter", lambda out: _resnet43(out)),
-    "two_stream": ("cliport (two_stream_clip_lingunet_lat_transporter)", lambda out: _two_stream(out)),
+    "transporter_only": ("transporter", _resnet43),
+    "two_stream": ("cliport (two_stream_clip_lingunet_lat_transporter)", _two_stream),
     "clip_only": ("clip_lingunet_transporter", lambda out: _lingunet(out, False, False)),
     "rn50_bert": ("two_stream_full_rn50_bert_lingunet_lat_transporter", lambda out: _two_stream(out, True)),
 }
@@ -80,9 +80,8 @@ def reference_counts(name: str) -> dict[str, object] | None:
     if name not in REFERENCE:
         return None
     label, net = REFERENCE[name]
-    counts: dict[str, object] = {"agent": label, "pick": net(1), "key": net(3), "query": net(3)}
-    counts["trainable_total"] = net(1) + 2 * net(3)
-    return counts
+    pick, place = net(1), net(3)
+    return {"agent": label, "pick": pick, "key": place, "query": place, "trainable_total": pick + 2 * place}
 
 
 def agent_counts(name: str) -> dict[str, object]:
