@@ -26,7 +26,7 @@ class CLIPOnlyAgent(PickPlaceAgent):
         pick = PickHead(SemanticNet(encoder, 1, config.width))
         place = PlaceHead(
             SemanticNet(encoder, PLACE_FEATURES, config.width),
-            SemanticNet(encoder, PLACE_FEATURES, config.width),
+            SemanticNet(encoder, PLACE_FEATURES, config.width, samples_per_group=config.n_rotations),
             config.crop_size,
             config.n_rotations,
         )

@@ -26,7 +26,7 @@ class TwoStreamAgent(PickPlaceAgent):
         pick = PickHead(TwoStreamNet(encoder, 1, "add", config.width))
         place = PlaceHead(
             TwoStreamNet(encoder, PLACE_FEATURES, "conv", config.width),
-            TwoStreamNet(encoder, PLACE_FEATURES, "conv", config.width),
+            TwoStreamNet(encoder, PLACE_FEATURES, "conv", config.width, samples_per_group=config.n_rotations),
             config.crop_size,
             config.n_rotations,
         )

@@ -1,5 +1,10 @@
-"""Residual building blocks shared by the Transporter and CLIPort networks (no batch norm), and bilinear x2
-up-sampling."""
+"""Building blocks of the Transporter and CLIPort networks, layer for layer as in the reference code.
+
+Residual bottlenecks without batch norm or conv biases (the reference trains with ``batchnorm: False``),
+bilinear x2 up-sampling with ``align_corners=True`` (``nn.UpsamplingBilinear2d``), the U-Net up-block
+with its batch norms, and the per-sample batch norm those batch norms need (see
+:class:`PerSampleBatchNorm2d`).
+"""
 
 from __future__ import annotations
 
@@ -10,35 +15,35 @@ import torch.nn.functional as F
 from torch import nn
 
 
-class BottleneckConvBlock(nn.Module):
-    """1x1 -> 3x3 -> 1x1 bottleneck with a 1x1 projection shortcut; the stride sits on the first 1x1."""
+class ConvBlock(nn.Module):
+    """1x1 -> 3x3 (strided) -> 1x1 bottleneck plus a strided 1x1 projection shortcut, no biases."""
 
     def __init__(self, in_ch: int, filters: tuple[int, int, int], stride: int = 1, final_relu: bool = True) -> None:
         super().__init__()
         f1, f2, f3 = filters
-        self.conv1 = nn.Conv2d(in_ch, f1, 1, stride=stride)
-        self.conv2 = nn.Conv2d(f1, f2, 3, padding=1)
-        self.conv3 = nn.Conv2d(f2, f3, 1)
-        self.shortcut = nn.Conv2d(in_ch, f3, 1, stride=stride)
+        self.conv1 = nn.Conv2d(in_ch, f1, 1, bias=False)
+        self.conv2 = nn.Conv2d(f1, f2, 3, stride=stride, padding=1, bias=False)
+        self.conv3 = nn.Conv2d(f2, f3, 1, bias=False)
+        self.shortcut = nn.Conv2d(in_ch, f3, 1, stride=stride, bias=False)
         self.final_relu = final_relu
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """(N, in_ch, H, W) -> (N, f3, H / stride, W / stride)."""
+        """(N, in_ch, H, W) -> (N, f3, ceil(H / stride), ceil(W / stride))."""
         y = F.relu(self.conv1(x))
         y = F.relu(self.conv2(y))
         y = self.conv3(y) + self.shortcut(x)
         return F.relu(y) if self.final_relu else y
 
 
-class BottleneckIdentityBlock(nn.Module):
-    """1x1 -> 3x3 -> 1x1 bottleneck added to its own input (input width = output width)."""
+class IdentityBlock(nn.Module):
+    """1x1 -> 3x3 -> 1x1 bottleneck added to its own input (input width = output width), no biases."""
 
     def __init__(self, ch: int, filters: tuple[int, int], final_relu: bool = True) -> None:
         super().__init__()
         f1, f2 = filters
-        self.conv1 = nn.Conv2d(ch, f1, 1)
-        self.conv2 = nn.Conv2d(f1, f2, 3, padding=1)
-        self.conv3 = nn.Conv2d(f2, ch, 1)
+        self.conv1 = nn.Conv2d(ch, f1, 1, bias=False)
+        self.conv2 = nn.Conv2d(f1, f2, 3, padding=1, bias=False)
+        self.conv3 = nn.Conv2d(f2, ch, 1, bias=False)
         self.final_relu = final_relu
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
@@ -50,104 +55,148 @@ class BottleneckIdentityBlock(nn.Module):
 
 
 class ResidualStage(nn.Sequential):
-    """A bottleneck conv block followed by an identity block, both `width` wide."""
+    """A conv block followed by an identity block, both `width` wide (the reference's stage pair)."""
 
-    def __init__(self, in_ch: int, width: int, stride: int = 1, final_relu: bool = True) -> None:
+    def __init__(self, in_ch: int, width: int, stride: int = 1) -> None:
         super().__init__(
-            BottleneckConvBlock(in_ch, (width, width, width), stride=stride, final_relu=final_relu),
-            BottleneckIdentityBlock(width, (width, width), final_relu=final_relu),
+            ConvBlock(in_ch, (width, width, width), stride=stride),
+            IdentityBlock(width, (width, width)),
         )
 
 
 class HeadStage(nn.Sequential):
-    """Output stage: conv block and identity block with 16-wide bottlenecks, no final ReLU."""
+    """Output stage: conv block and identity block with `hidden`-wide bottlenecks, no final ReLU."""
 
     def __init__(self, in_ch: int, hidden: int, out_ch: int) -> None:
         super().__init__(
-            BottleneckConvBlock(in_ch, (hidden, hidden, out_ch), final_relu=False),
-            BottleneckIdentityBlock(out_ch, (hidden, hidden), final_relu=False),
+            ConvBlock(in_ch, (hidden, hidden, out_ch), final_relu=False),
+            IdentityBlock(out_ch, (hidden, hidden), final_relu=False),
         )
 
 
-UPSAMPLE_MODES = ("auto", "stencil", "interpolate")
-_upsample_mode = "auto"
+def upsample2x(x: torch.Tensor) -> torch.Tensor:
+    """Bilinear x2 up-sampling with ``align_corners=True``, the reference's ``nn.UpsamplingBilinear2d``
+    and U-Net ``Up``. (N, C, H, W) -> (N, C, 2H, 2W)."""
+    return F.interpolate(x, scale_factor=2, mode="bilinear", align_corners=True)
 
 
-def set_upsample_mode(mode: str) -> None:
-    """How exact x2 bilinear up-sampling is computed, process-wide.
-
-    ``"auto"`` (default): the elementwise stencil of :func:`upsample2x_stencil` on accelerators, where
-    ``aten::upsample_bilinear2d`` dominated the profile (slow atomic-add backward, NCHW only), and
-    ``F.interpolate`` on the CPU, whose native kernel is faster there. ``"stencil"`` and ``"interpolate"``
-    force one of them everywhere. Both give the same function up to float rounding.
-    """
-    global _upsample_mode
-    if mode not in UPSAMPLE_MODES:
-        raise ValueError(f"upsample mode must be one of {UPSAMPLE_MODES}, got {mode!r}")
-    _upsample_mode = mode
-
-
-def upsample_mode() -> str:
-    """The mode set by :func:`set_upsample_mode`."""
-    return _upsample_mode
-
-
-def _empty_like_layout(x: torch.Tensor, shape: tuple[int, ...]) -> torch.Tensor:
-    channels_last = x.is_contiguous(memory_format=torch.channels_last) and not x.is_contiguous()
-    layout = torch.channels_last if channels_last else torch.contiguous_format
-    return torch.empty(shape, dtype=x.dtype, device=x.device, memory_format=layout)
-
-
-def _upsample2x_along(x: torch.Tensor, dim: int) -> torch.Tensor:
-    """Doubles dim 2 or 3 of (N, C, H, W): out[2i] = 0.75 x[i] + 0.25 x[i-1], out[2i+1] = 0.75 x[i] +
-    0.25 x[i+1], indices clamped to the edges."""
-
-    def at(index: slice | int) -> tuple[slice | int, ...]:
-        return (slice(None),) * dim + (index,)
-
-    shape = list(x.shape)
-    shape[dim] *= 2
-    out = _empty_like_layout(x, tuple(shape))
-    out[at(0)] = x[at(0)]
-    out[at(slice(2, None, 2))] = torch.lerp(x[at(slice(1, None))], x[at(slice(None, -1))], 0.25)
-    out[at(slice(1, -1, 2))] = torch.lerp(x[at(slice(None, -1))], x[at(slice(1, None))], 0.25)
-    out[at(-1)] = x[at(-1)]
-    return out
-
-
-def upsample2x_stencil(x: torch.Tensor) -> torch.Tensor:
-    """Exact bilinear x2 up-sampling (``align_corners=False``) from elementwise ops and slicing.
-
-    Equals ``F.interpolate(x, scale_factor=2, mode="bilinear", align_corners=False)`` up to float
-    rounding: each output row/column is 0.75 of its source plus 0.25 of the neighbour on its side, with
-    edge clamping, separably along H and W. Keeps x's memory layout (NCHW or channels_last) and its
-    backward is elementwise too. (N, C, H, W) -> (N, C, 2H, 2W).
-    """
-    return _upsample2x_along(_upsample2x_along(x, 2), 3)
-
-
-def _use_stencil(x: torch.Tensor) -> bool:
-    if _upsample_mode == "auto":
-        return x.device.type != "cpu"
-    return _upsample_mode == "stencil"
-
-
-def upsample_bilinear(x: torch.Tensor, size: Sequence[int]) -> torch.Tensor:
-    """``F.interpolate(x, size, mode="bilinear", align_corners=False)``; an exact x2 goes through
-    :func:`upsample2x_stencil` where :func:`set_upsample_mode` says so. (N, C, h, w) -> (N, C, *size)."""
-    h, w = x.shape[-2:]
-    if tuple(size) == (2 * h, 2 * w) and _use_stencil(x):
-        return upsample2x_stencil(x)
+def resize(x: torch.Tensor, size: Sequence[int]) -> torch.Tensor:
+    """Bilinear resize with ``align_corners=False`` (``F.interpolate``'s default mode, which the reference
+    uses to bring its 2x heads back to the input size). (N, C, h, w) -> (N, C, *size)."""
+    if tuple(x.shape[-2:]) == tuple(size):
+        return x
     return F.interpolate(x, size=tuple(size), mode="bilinear", align_corners=False)
 
 
 class Upsample2x(nn.Module):
-    """Bilinear x2 up-sampling (``align_corners=False``), see :func:`upsample_bilinear`."""
+    """:func:`upsample2x` as a module."""
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """(N, C, H, W) -> (N, C, 2H, 2W)."""
-        h, w = x.shape[-2:]
-        return upsample_bilinear(x, (2 * h, 2 * w))
+        return upsample2x(x)
+
+
+class UpStage(nn.Sequential):
+    """A :class:`ResidualStage` followed by x2 up-sampling (the reference's decoder ``layerN``)."""
+
+    def __init__(self, in_ch: int, width: int) -> None:
+        super().__init__(ResidualStage(in_ch, width), Upsample2x())
+
+
+class PerSampleBatchNorm2d(nn.BatchNorm2d):
+    """Batch norm that always normalises with the statistics of one sample's images, in training and
+    in eval mode alike.
+
+    The reference trains at batch size 1 and acts without ``.eval()``, so its U-Net batch norms always
+    normalise with each call's own statistics: one image for the pick and key nets, the 36 rotated
+    crops of one sample for the query net. Here a call may hold several samples (training batches,
+    ``act_batch``): the images are split into groups of ``samples_per_group`` consecutive images
+    (1 for pick and key; ``n_rotations`` for the query net, whose crops come sample-major), and each
+    group is normalised by its own per-channel mean and biased variance. A batch of 8 therefore trains
+    like 8 reference steps and batch-mates never influence each other's outputs. The running
+    statistics are never read; in training mode they are updated as the reference's sequence of
+    batch-1 steps would update them, so that state dicts keep the reference's meaning.
+    """
+
+    def __init__(self, num_features: int, samples_per_group: int = 1) -> None:
+        super().__init__(num_features)
+        self.samples_per_group = samples_per_group
+
+    def extra_repr(self) -> str:
+        return f"{super().extra_repr()}, samples_per_group={self.samples_per_group}"
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """(N, C, H, W) with N a multiple of ``samples_per_group`` -> (N, C, H, W)."""
+        n, c, h, w = x.shape
+        size = self.samples_per_group
+        if n % size:
+            raise ValueError(f"{n} images do not split into groups of {size} (one group per sample)")
+        groups = n // size
+        # Group g's images become the batch of one channel block of a single batch_norm call.
+        grouped = x.reshape(groups, size, c, h, w).transpose(0, 1).reshape(size, groups * c, h, w)
+        update = self.training and self.running_mean is not None
+        mean = self.running_mean.repeat(groups) if update else None
+        var = self.running_var.repeat(groups) if update else None
+        out = F.batch_norm(
+            grouped, mean, var, self.weight.repeat(groups), self.bias.repeat(groups), True, self.momentum, self.eps
+        )
+        if update:
+            self._update_running(mean, var, groups)
+        return out.reshape(size, groups, c, h, w).transpose(0, 1).reshape(n, c, h, w)
+
+    @torch.no_grad()
+    def _update_running(self, mean: torch.Tensor, var: torch.Tensor, groups: int) -> None:
+        """Turns the groups' parallel updates r_g = (1 - m) r + m s_g into the sequential result
+        (1 - m)^G r + sum_g (1 - m)^(G - 1 - g) m s_g of G batch-1 steps."""
+        keep = 1.0 - self.momentum
+        weights = keep ** torch.arange(groups - 1, -1, -1, dtype=mean.dtype, device=mean.device)
+        for running, parallel in ((self.running_mean, mean), (self.running_var, var)):
+            steps = parallel.view(groups, -1) - keep * running  # m * s_g
+            running.mul_(keep**groups).add_((weights[:, None] * steps).sum(0))
+        self.num_batches_tracked.add_(groups)
+
+
+class DoubleConv(nn.Sequential):
+    """(3x3 conv -> batch norm -> ReLU) x 2, the reference U-Net's block (convs with biases)."""
+
+    def __init__(self, in_ch: int, out_ch: int, mid_ch: int, samples_per_group: int = 1) -> None:
+        super().__init__(
+            nn.Conv2d(in_ch, mid_ch, 3, padding=1),
+            PerSampleBatchNorm2d(mid_ch, samples_per_group),
+            nn.ReLU(inplace=True),
+            nn.Conv2d(mid_ch, out_ch, 3, padding=1),
+            PerSampleBatchNorm2d(out_ch, samples_per_group),
+            nn.ReLU(inplace=True),
+        )
+
+
+class UpBlock(nn.Module):
+    """U-Net up-block: x2 up-sampling (``align_corners=True``), zero-pad to the skip's size, concatenate
+    [skip, up] and a :class:`DoubleConv` from ``in_ch`` (= both widths) through ``in_ch // 2`` to ``out_ch``."""
+
+    def __init__(self, in_ch: int, out_ch: int, samples_per_group: int = 1) -> None:
+        super().__init__()
+        self.conv = DoubleConv(in_ch, out_ch, in_ch // 2, samples_per_group)
+
+    def forward(self, x: torch.Tensor, skip: torch.Tensor) -> torch.Tensor:
+        """(N, c, h, w), skip (N, in_ch - c, H, W) with H, W >= 2h, 2w -> (N, out_ch, H, W)."""
+        x = upsample2x(x)
+        dh, dw = skip.shape[-2] - x.shape[-2], skip.shape[-1] - x.shape[-1]
+        if dh or dw:
+            x = F.pad(x, [dw // 2, dw - dw // 2, dh // 2, dh - dh // 2])
+        return self.conv(torch.cat([skip, x], dim=1))
+
+
+class LateralFusion(nn.Module):
+    """concat(semantic, spatial lateral) -> ReLU -> 1x1 conv (no bias) to ``out_ch`` channels."""
+
+    def __init__(self, in_ch: int, out_ch: int) -> None:
+        super().__init__()
+        self.conv = nn.Conv2d(in_ch, out_ch, 1, bias=False)
+
+    def forward(self, x: torch.Tensor, lateral: torch.Tensor) -> torch.Tensor:
+        """(N, c, H, W), (N, in_ch - c, H, W) -> (N, out_ch, H, W)."""
+        return self.conv(F.relu(torch.cat([x, lateral], dim=1)))
 
 
 def scaled(width: int, multiplier: float) -> int:

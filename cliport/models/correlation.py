@@ -30,6 +30,32 @@ def fft_cross_correlation(key: torch.Tensor, kernels: torch.Tensor) -> torch.Ten
     return out[..., : height - kh + 1, : width - kw + 1]
 
 
+def transport_correlation(key: torch.Tensor, kernels: torch.Tensor) -> torch.Tensor:
+    """The place logits of the reference's Transport: correlation of the padded key map with the query
+    kernels, with the reference's resize.
+
+    The reference computes ``conv2d(key, kernels, padding=crop / 2)``, of size (H + crop + 1, W + crop + 1)
+    for a key padded by crop / 2 on each side, bilinearly resizes it (``align_corners=False``) to the
+    key's size (H + crop, W + crop) and crops the padding, which blends neighbouring outputs by up to
+    (H + crop)^-1 of a pixel per pixel of distance from the top-left corner. The resized values inside the
+    crop only read outputs where the kernel lies inside the key map, i.e. the valid correlation, which is
+    computed here with FFTs (:func:`fft_cross_correlation`) and zero-padded to the conv's size.
+
+    Args:
+        key: (B, C, H + crop, W + crop), the key net's output on the padded input.
+        kernels: (B, R, C, crop, crop), the query net's outputs.
+    Returns:
+        (B, R, H, W).
+    """
+    kh, kw = kernels.shape[-2:]
+    ph, pw = kh // 2, kw // 2
+    hk, wk = key.shape[-2:]
+    valid = fft_cross_correlation(key, kernels)  # (B, R, H + 1, W + 1)
+    full = F.pad(valid, (pw, pw, ph, ph))  # the size of the padded conv2d's output
+    resized = F.interpolate(full, size=(hk, wk), mode="bilinear", align_corners=False)
+    return resized[..., ph : hk - ph, pw : wk - pw]
+
+
 def direct_cross_correlation(key: torch.Tensor, kernels: torch.Tensor) -> torch.Tensor:
     """Reference implementation of :func:`fft_cross_correlation` with ``F.conv2d`` (slow; for tests).
 

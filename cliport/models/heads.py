@@ -1,11 +1,12 @@
 """Pick ("attention") and place ("transport") heads wrapped around any net of the streams module.
 
-Rotation convention (place): bin k stands for the relative world yaw theta_k = k * 2*pi / n_rotations,
-counter-clockwise about +z. Image rows run along +y and columns along +x, so a pixel offset (du, dv) is
-the world vector (dx, dy) = (dv, du). The query for bin k is the neighbourhood of the pick pixel as it
-looks after rotating it by theta_k in world yaw: crop_k(o) = image(pick + R(-theta_k) o), with R acting
-on (x, y) = (column, row) offsets. It therefore matches the place neighbourhood of an object that is
-placed theta_k (counter-clockwise) relative to how it was picked, and decoding bin k gives that yaw.
+Rotation convention (place), the reference CLIPort's: the query of bin k is cut from the padded input
+rotated by k * 360 / n_rotations degrees about the pick pixel, counter-clockwise as the image is shown
+(rows downwards), with kornia 0.4.1's ``warp_affine`` pixel convention (see :mod:`cliport.models.rotation`).
+Rows run along world +y and columns along +x, so a rotation that is counter-clockwise on screen turns
+the scene by a negative world yaw: bin k stands for the relative world yaw -k * 2*pi / n_rotations
+(counter-clockwise about +z), which :meth:`PlaceHead.bin_yaw` gives and :meth:`PlaceHead.rotation_bin`
+inverts.
 """
 
 from __future__ import annotations
@@ -16,7 +17,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from cliport.models.correlation import fft_cross_correlation
+from cliport.models import rotation
+from cliport.models.correlation import transport_correlation
 
 
 class PickHead(nn.Module):
@@ -29,39 +31,19 @@ class PickHead(nn.Module):
         self.input_memory_format = torch.contiguous_format
 
     def forward(self, x: torch.Tensor, sentence: torch.Tensor | None = None) -> torch.Tensor:
-        """Raw (B, 6, H, W), sentence (B, sentence_dim) or None -> logits (B, H, W)."""
+        """Raw (B, 6, H, W), sentence (B, sentence_dim) or None -> logits (B, H, W).
+
+        As the reference, the padded input and the logits are rotated by 0 degrees about the centre with
+        kornia's convention, which resamples them by float32 rounding (see :mod:`cliport.models.rotation`).
+        """
         h, w = x.shape[-2:]
         side = max(h, w)
         top, left = (side - h) // 2, (side - w) // 2
-        padded = F.pad(x, (left, side - w - left, top, side - h - top))
-        padded = padded.contiguous(memory_format=self.input_memory_format)
-        logits = self.net(padded, sentence)
+        pivot = (side // 2, side // 2)
+        padded = rotation.warp(F.pad(x, (left, side - w - left, top, side - h - top)), 0.0, pivot)
+        logits = self.net(padded.contiguous(memory_format=self.input_memory_format), sentence)
+        logits = rotation.warp(logits[:, :1], 0.0, pivot)
         return logits[:, 0, top : top + h, left : left + w]
-
-
-def rotated_crop_grid(
-    pick_pix: torch.Tensor, n_rotations: int, crop_size: int, padded_hw: tuple[int, int], pad: int
-) -> torch.Tensor:
-    """Sampling grid of the rotated query crops for ``grid_sample(..., align_corners=True)``.
-
-    pick_pix (B, 2) as (u, v) in the unpadded image -> grid (B, n_rotations * crop, crop, 2), in which
-    rows r * crop .. (r + 1) * crop - 1 hold the crop of rotation bin r (see the module docstring).
-    """
-    device = pick_pix.device
-    half = crop_size // 2
-    offsets = torch.arange(crop_size, device=device, dtype=torch.float32) - half
-    du, dv = torch.meshgrid(offsets, offsets, indexing="ij")  # (crop, crop)
-    theta = torch.arange(n_rotations, device=device, dtype=torch.float32) * (2 * math.pi / n_rotations)
-    cos, sin = torch.cos(theta)[:, None, None], torch.sin(theta)[:, None, None]
-    # R(-theta) applied to the (x, y) = (dv, du) offset.
-    sample_v = cos * dv + sin * du
-    sample_u = -sin * dv + cos * du
-    centre = pick_pix.float() + pad
-    u = centre[:, 0, None, None, None] + sample_u[None]
-    v = centre[:, 1, None, None, None] + sample_v[None]
-    hp, wp = padded_hw
-    grid = torch.stack([2 * v / (wp - 1) - 1, 2 * u / (hp - 1) - 1], dim=-1)  # (B, R, crop, crop, 2)
-    return grid.reshape(pick_pix.shape[0], n_rotations * crop_size, crop_size, 2)
 
 
 class PlaceHead(nn.Module):
@@ -78,24 +60,24 @@ class PlaceHead(nn.Module):
         self.input_memory_format = torch.contiguous_format
 
     def rotation_bin(self, relative_yaw: torch.Tensor) -> torch.Tensor:
-        """Bin of a relative place yaw (place yaw - pick yaw, radians), (B,) float -> (B,) int64:
-        the nearest k with k * 2*pi / n_rotations, modulo n_rotations."""
+        """Bin of a relative place yaw (place yaw - pick yaw, radians), (B,) float -> (B,) int64: the
+        nearest k with -k * 2*pi / n_rotations, modulo n_rotations (the reference's labels)."""
         step = 2 * math.pi / self.n_rotations
-        return torch.round(torch.remainder(relative_yaw.double(), 2 * math.pi) / step).long() % self.n_rotations
+        return torch.round(-relative_yaw.double() / step).long() % self.n_rotations
+
+    def bin_yaw(self, k: int) -> float:
+        """The relative world yaw (radians, in (-2*pi, 0]) that rotation bin ``k`` stands for."""
+        return -k * 2 * math.pi / self.n_rotations
 
     def query_crops(self, padded: torch.Tensor, pick_pix: torch.Tensor) -> torch.Tensor:
         """Padded raw (B, C, H + crop, W + crop), pick (B, 2) -> crops (B * R, C, crop, crop), bin-major
         within each sample."""
-        b, c = padded.shape[:2]
-        grid = rotated_crop_grid(pick_pix, self.n_rotations, self.crop_size, padded.shape[-2:], self.crop_size // 2)
-        crops = F.grid_sample(padded, grid.to(padded.dtype), mode="bilinear", align_corners=True)
-        crops = crops.reshape(b, c, self.n_rotations, self.crop_size, self.crop_size)
-        crops = crops.transpose(1, 2).reshape(b * self.n_rotations, c, self.crop_size, self.crop_size)
+        crops = rotation.rotated_crops(padded, pick_pix + self.crop_size // 2, self.n_rotations, self.crop_size)
         return crops.contiguous(memory_format=self.input_memory_format)
 
     def forward(self, x: torch.Tensor, pick_pix: torch.Tensor, sentence: torch.Tensor | None = None) -> torch.Tensor:
         """Raw (B, 6, H, W), pick (B, 2) int (u, v), sentence (B, sentence_dim) or None -> logits (B, R, H, W)."""
-        b, _, h, w = x.shape
+        b = x.shape[0]
         pad = self.crop_size // 2
         padded = F.pad(x, (pad, pad, pad, pad)).contiguous(memory_format=self.input_memory_format)
         key = self.key_net(padded, sentence)
@@ -106,4 +88,4 @@ class PlaceHead(nn.Module):
             query_sentence = sentence[:, None].expand(-1, self.n_rotations, -1).reshape(b * self.n_rotations, -1)
         query = self.query_net(self.query_crops(padded, pick_pix), query_sentence)
         kernels = query.reshape(b, self.n_rotations, *query.shape[1:])
-        return fft_cross_correlation(key, kernels)[..., :h, :w]
+        return transport_correlation(key, kernels)

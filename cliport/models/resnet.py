@@ -6,11 +6,12 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from cliport.models.blocks import HeadStage, ResidualStage, Upsample2x, scaled
+from cliport.models.blocks import HeadStage, ResidualStage, UpStage, resize, scaled
 
 
 class ResNet43_8s(nn.Module):  # noqa: N801 - the name used by the Transporter Networks paper
-    """Encoder to 1/8 resolution (64, 128, 256, 512) and decoder back (256, 128, 64) with a 16-wide head.
+    """3x3 stem (64), encoder stages 64, 128/2, 256/2, 512/2 (stride on each stage's 3x3 conv), decoder
+    stages 256, 128, 64 each followed by x2 up-sampling, and a 16-wide head: (N, in, H, W) at 1/8 and back.
 
     Height and width of the input must be multiples of 8.
     """
@@ -25,14 +26,7 @@ class ResNet43_8s(nn.Module):  # noqa: N801 - the name used by the Transporter N
             ResidualStage(w[1], w[2], stride=2),
             ResidualStage(w[2], w[3], stride=2),
         )
-        self.decoder = nn.Sequential(
-            ResidualStage(w[3], w[4]),
-            Upsample2x(),
-            ResidualStage(w[4], w[5]),
-            Upsample2x(),
-            ResidualStage(w[5], w[6]),
-            Upsample2x(),
-        )
+        self.decoder = nn.Sequential(UpStage(w[3], w[4]), UpStage(w[4], w[5]), UpStage(w[5], w[6]))
         self.head = HeadStage(w[6], scaled(16, width), out_ch)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
@@ -42,40 +36,34 @@ class ResNet43_8s(nn.Module):  # noqa: N801 - the name used by the Transporter N
 
 
 class ResNet45_10s(nn.Module):  # noqa: N801 - the name used by the CLIPort code base
-    """Encoder to 1/16 resolution at 1024 channels; decoder 512-256-128-64-32 with bilinear x2 up-sampling.
+    """Encoder to 1/16 at 1024 channels; five decoder stages 512, 256, 128, 64, 32, each followed by x2
+    up-sampling, so the 16-wide head runs at twice the input resolution and is resized back (bilinear).
 
-    Besides its output it returns the five decoder activations (before each up-sampling) as lateral
-    features for the semantic stream, at strides 16, 8, 4, 2, 1 with widths 512, 256, 128, 64, 32
-    (times the width multiplier). Height and width must be multiples of 16.
+    Besides its output it returns six lateral features for the semantic stream: the inputs of the five
+    decoder stages and of the head, at strides 16, 8, 4, 2, 1, 1/2 with widths 1024, 512, 256, 128, 64,
+    32 (times the width multiplier). Height and width must be multiples of 16.
     """
-
-    decoder_widths = (512, 256, 128, 64, 32)
 
     def __init__(self, in_ch: int, out_ch: int, width: float = 1.0) -> None:
         super().__init__()
         enc = [scaled(c, width) for c in (64, 128, 256, 512, 1024)]
-        dec = [scaled(c, width) for c in self.decoder_widths]
-        self.lateral_widths = tuple(dec)
+        dec = [scaled(c, width) for c in (512, 256, 128, 64, 32)]
+        self.lateral_widths = (enc[-1], *dec)
         self.stem = nn.Conv2d(in_ch, enc[0], 3, padding=1)
         self.encoder = nn.Sequential(
             ResidualStage(enc[0], enc[0]),
-            ResidualStage(enc[0], enc[1], stride=2),
-            ResidualStage(enc[1], enc[2], stride=2),
-            ResidualStage(enc[2], enc[3], stride=2),
-            ResidualStage(enc[3], enc[4], stride=2),
+            *(ResidualStage(i, o, stride=2) for i, o in zip(enc[:-1], enc[1:], strict=True)),
         )
-        ins = [enc[4], *dec[:-1]]
-        self.decoder = nn.ModuleList(ResidualStage(i, o) for i, o in zip(ins, dec, strict=True))
-        self.upsample = Upsample2x()
+        self.decoder = nn.ModuleList(UpStage(i, o) for i, o in zip(self.lateral_widths[:-1], dec, strict=True))
         self.head = HeadStage(dec[-1], scaled(16, width), out_ch)
 
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, list[torch.Tensor]]:
-        """(N, in_ch, H, W) -> ((N, out_ch, H, W), [laterals at strides 16, 8, 4, 2, 1])."""
+        """(N, in_ch, H, W) -> ((N, out_ch, H, W), six laterals at strides 16, 8, 4, 2, 1, 1/2)."""
+        size = x.shape[-2:]
         x = self.encoder(F.relu(self.stem(x)))
         laterals = []
-        for i, stage in enumerate(self.decoder):
-            x = stage(x)
+        for stage in self.decoder:
             laterals.append(x)
-            if i < len(self.decoder) - 1:
-                x = self.upsample(x)
-        return self.head(x), laterals
+            x = stage(x)
+        laterals.append(x)
+        return resize(self.head(x), size), laterals

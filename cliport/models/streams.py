@@ -2,6 +2,8 @@
 
 Every net here maps a raw input (N, 6, H, W) — RGB in [0, 1], height in metres repeated 3x — and an
 optional sentence feature (N, sentence_dim) to an (N, out, H, W) map; each normalises its own input.
+The nets compute what the reference CLIPort's nets compute given the same weights (see the README's
+"Parity with the reference").
 """
 
 from __future__ import annotations
@@ -10,7 +12,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from cliport.models.blocks import ResidualStage, Upsample2x, scaled, upsample_bilinear
+from cliport.models.blocks import LateralFusion, UpBlock, UpStage, resize, scaled
 from cliport.models.encoders import FrozenEncoder
 from cliport.models.preprocess import IN_CHANNELS, transporter_normalize
 from cliport.models.resnet import ResNet43_8s, ResNet45_10s
@@ -28,68 +30,19 @@ class TransporterNet(nn.Module):
         return self.resnet(transporter_normalize(x))
 
 
-class DoubleConv(nn.Sequential):
-    """(3x3 conv -> ReLU) x 2."""
-
-    def __init__(self, in_ch: int, out_ch: int, mid_ch: int) -> None:
-        super().__init__(
-            nn.Conv2d(in_ch, mid_ch, 3, padding=1),
-            nn.ReLU(inplace=True),
-            nn.Conv2d(mid_ch, out_ch, 3, padding=1),
-            nn.ReLU(inplace=True),
-        )
-
-
-class SkipUp(nn.Module):
-    """U-Net up-sampling block: bilinear x2, concatenate the skip feature, double conv."""
-
-    def __init__(self, in_ch: int, skip_ch: int, out_ch: int) -> None:
-        super().__init__()
-        total = in_ch + skip_ch
-        self.conv = DoubleConv(total, out_ch, total // 2)
-
-    def forward(self, x: torch.Tensor, skip: torch.Tensor) -> torch.Tensor:
-        """(N, in_ch, h, w), (N, skip_ch, H, W) -> (N, out_ch, H, W)."""
-        x = upsample_bilinear(x, skip.shape[-2:])
-        return self.conv(torch.cat([x, skip], dim=1))
-
-
-class LanguageGate(nn.Module):
-    """Projects the sentence feature to `ch` channels and multiplies it into a feature map."""
-
-    def __init__(self, sentence_dim: int, ch: int) -> None:
-        super().__init__()
-        self.proj = nn.Linear(sentence_dim, ch)
-
-    def forward(self, x: torch.Tensor, sentence: torch.Tensor) -> torch.Tensor:
-        """(N, ch, H, W), (N, sentence_dim) -> (N, ch, H, W)."""
-        return x * self.proj(sentence)[:, :, None, None]
-
-
-class LateralFusion(nn.Module):
-    """concat(semantic, spatial lateral) -> ReLU -> 1x1 conv back to the semantic width."""
-
-    def __init__(self, sem_ch: int, lat_ch: int) -> None:
-        super().__init__()
-        self.conv = nn.Conv2d(sem_ch + lat_ch, sem_ch, 1)
-
-    def forward(self, x: torch.Tensor, lateral: torch.Tensor) -> torch.Tensor:
-        """(N, sem_ch, H, W), (N, lat_ch, h, w) -> (N, sem_ch, H, W)."""
-        if lateral.shape[-2:] != x.shape[-2:]:
-            lateral = upsample_bilinear(lateral, x.shape[-2:])
-        return self.conv(F.relu(torch.cat([x, lateral], dim=1)))
-
-
 class SemanticDecoder(nn.Module):
-    """Language-conditioned U-Net decoder over a frozen trunk, with lateral fusions from a spatial stream
-    when it has one.
+    """CLIPort's language-conditioned U-Net over a frozen trunk (the reference's ``CLIPLingUNetLat`` and,
+    without laterals, ``CLIPLingUNet``).
 
-    layer4 (c4, /32) -> 3x3 conv 1024 -> [gate, up + layer3 skip -> 512] (/16) -> [gate, up + layer2
-    -> 256] (/8) -> [gate, up + layer1 -> 128] (/4) -> 64, up (/2) -> 32, up (/1) -> 16 -> 1x1 conv out;
-    with ``lateral_widths`` (two-stream nets), after each of the five 512..32 stages the matching spatial
-    lateral is fused in; without them (CLIP-only), the stages follow each other directly. The trunk's
-    channels and the sentence width come from the encoder; an encoder with ``sentence_projection``
-    gets a trainable Linear on the sentence feature before the gates.
+    layer4 (/32) -> 3x3 conv 1024 (no bias) -> [gate 1024, up + layer3 skip -> 512] (/16) -> [gate 512,
+    up + layer2 -> 256] (/8) -> [gate 256, up + layer1 -> 128] (/4) -> stage 64, up (/2) -> stage 32, up
+    (/1) -> stage 16, up (x2) -> 1x1 conv out, resized to the input size. A gate multiplies the map by a
+    Linear projection of the sentence feature. With ``lateral_widths`` (two-stream nets: the six laterals
+    of :class:`ResNet45_10s`), the output of each of the six up-steps is fused with the spatial lateral of
+    its resolution. The up-blocks' batch norms normalise per sample (:class:`PerSampleBatchNorm2d`;
+    ``samples_per_group`` images form one sample: ``n_rotations`` in the query net). The trunk's channels
+    and the sentence width come from the encoder; an encoder with ``sentence_projection`` gets a
+    trainable Linear on the sentence feature before the gates.
     """
 
     def __init__(
@@ -98,6 +51,7 @@ class SemanticDecoder(nn.Module):
         out_ch: int,
         lateral_widths: tuple[int, ...] | None,
         width: float = 1.0,
+        samples_per_group: int = 1,
     ) -> None:
         super().__init__()
         _, c1, c2, c3, c4 = encoder.trunk_channels
@@ -107,17 +61,18 @@ class SemanticDecoder(nn.Module):
         if encoder.sentence_projection is not None:
             self.sentence_fc = nn.Linear(sentence_dim, encoder.sentence_projection)
             sentence_dim = encoder.sentence_projection
-        self.bottleneck = nn.Sequential(nn.Conv2d(c4, w[0], 3, padding=1), nn.ReLU(inplace=True))
-        self.gates = nn.ModuleList(LanguageGate(sentence_dim, ch) for ch in w[:3])
-        self.ups = nn.ModuleList([SkipUp(w[0], c3, w[1]), SkipUp(w[1], c2, w[2]), SkipUp(w[2], c1, w[3])])
-        self.refine = nn.ModuleList([ResidualStage(w[3], w[4]), ResidualStage(w[4], w[5])])
-        self.upsample = Upsample2x()
+        self.gates = nn.ModuleList(nn.Linear(sentence_dim, ch) for ch in w[:3])
+        self.bottleneck = nn.Sequential(nn.Conv2d(c4, w[0], 3, padding=1, bias=False), nn.ReLU(inplace=True))
+        self.ups = nn.ModuleList(
+            UpBlock(x + skip, out, samples_per_group)
+            for x, skip, out in zip(w[:3], (c3, c2, c1), w[1:4], strict=True)
+        )
+        self.stages = nn.ModuleList(UpStage(i, o) for i, o in zip(w[3:6], w[4:7], strict=True))
         self.fusions = None
         if lateral_widths is not None:
             self.fusions = nn.ModuleList(
-                LateralFusion(ch, lat) for ch, lat in zip(w[1:6], lateral_widths, strict=True)
+                LateralFusion(ch + lat, ch) for ch, lat in zip(w[1:7], lateral_widths, strict=True)
             )
-        self.tail = ResidualStage(w[5], w[6])
         self.out = nn.Conv2d(w[6], out_ch, 1)
 
     def forward(
@@ -127,45 +82,44 @@ class SemanticDecoder(nn.Module):
         laterals: list[torch.Tensor] | None,
         out_size: tuple[int, int],
     ) -> torch.Tensor:
-        """Trunk features [stem, layer1..4] of an (N, 3, H, W) image, sentence (N, sentence_dim), five
-        spatial laterals (strides 16, 8, 4, 2, 1) or None, out_size (H, W) -> (N, out_ch, H, W)."""
+        """Trunk features [stem, layer1..4] of an (N, 3, H, W) image, sentence (N, sentence_dim), six
+        spatial laterals (strides 16, 8, 4, 2, 1, 1/2) or None, out_size (H, W) -> (N, out_ch, H, W)."""
         _, l1, l2, l3, l4 = trunk
         if self.sentence_fc is not None:
             sentence = self.sentence_fc(sentence)
-        fuse = list(self.fusions) if self.fusions is not None else [None] * 5
-        lats = list(laterals) if laterals is not None else [None] * 5
         x = self.bottleneck(l4)
-        for gate, up, fusion, lateral, skip in zip(self.gates, self.ups, fuse[:3], lats[:3], (l3, l2, l1), strict=True):
-            x = up(gate(x, sentence), skip)
-            if fusion is not None:
-                x = fusion(x, lateral)
-        for refine, fusion, lateral in zip(self.refine, fuse[3:], lats[3:], strict=True):
-            x = self.upsample(refine(x))
-            if fusion is not None:
-                x = fusion(x, lateral)
-        x = self.out(self.tail(x))
-        if tuple(x.shape[-2:]) != tuple(out_size):
-            x = upsample_bilinear(x, out_size)
-        return x
+        for i, (gate, up, skip) in enumerate(zip(self.gates, self.ups, (l3, l2, l1), strict=True)):
+            x = self._fuse(i, up(x * gate(sentence)[:, :, None, None], skip), laterals)
+        for i, stage in enumerate(self.stages, start=3):
+            x = self._fuse(i, stage(x), laterals)
+        return resize(self.out(x), out_size)
+
+    def _fuse(self, i: int, x: torch.Tensor, laterals: list[torch.Tensor] | None) -> torch.Tensor:
+        if self.fusions is None:
+            return x
+        assert laterals is not None
+        return self.fusions[i](x, laterals[i])
 
 
 class TwoStreamNet(nn.Module):
     """CLIPort net: spatial ResNet45_10s stream + frozen-encoder semantic stream, fused.
 
     The frozen encoder (CLIP, or RN50 + DistilBERT) is shared between nets and is not a trainable part
-    of this one. ``fusion="add"``
-    sums the two streams' outputs (pick); ``fusion="conv"`` applies ReLU + 1x1 conv (2*out -> out)
-    (key and query).
+    of this one. ``fusion="add"`` sums the two streams' outputs (pick); ``fusion="conv"`` applies ReLU +
+    1x1 conv without bias (2*out -> out) to [spatial, semantic] (key and query).
+    ``samples_per_group``: see :class:`SemanticDecoder`.
     """
 
-    def __init__(self, encoder: FrozenEncoder, out_ch: int, fusion: str, width: float = 1.0) -> None:
+    def __init__(
+        self, encoder: FrozenEncoder, out_ch: int, fusion: str, width: float = 1.0, samples_per_group: int = 1
+    ) -> None:
         super().__init__()
         if fusion not in ("add", "conv"):
             raise ValueError(f"fusion must be 'add' or 'conv', got {fusion!r}")
         self.encoder = encoder
         self.spatial = ResNet45_10s(IN_CHANNELS, out_ch, width)
-        self.semantic = SemanticDecoder(encoder, out_ch, self.spatial.lateral_widths, width)
-        self.fuse = nn.Conv2d(2 * out_ch, out_ch, 1) if fusion == "conv" else None
+        self.semantic = SemanticDecoder(encoder, out_ch, self.spatial.lateral_widths, width, samples_per_group)
+        self.fuse = nn.Conv2d(2 * out_ch, out_ch, 1, bias=False) if fusion == "conv" else None
 
     def forward(self, x: torch.Tensor, sentence: torch.Tensor | None = None) -> torch.Tensor:
         """Raw (N, 6, H, W) (H, W multiples of 32), sentence (N, sentence_dim) -> (N, out_ch, H, W)."""
@@ -184,10 +138,10 @@ class SemanticNet(nn.Module):
     Reads only the RGB channels of its input; the height channels are not seen.
     """
 
-    def __init__(self, encoder: FrozenEncoder, out_ch: int, width: float = 1.0) -> None:
+    def __init__(self, encoder: FrozenEncoder, out_ch: int, width: float = 1.0, samples_per_group: int = 1) -> None:
         super().__init__()
         self.encoder = encoder
-        self.semantic = SemanticDecoder(encoder, out_ch, None, width)
+        self.semantic = SemanticDecoder(encoder, out_ch, None, width, samples_per_group)
 
     def forward(self, x: torch.Tensor, sentence: torch.Tensor | None = None) -> torch.Tensor:
         """Raw (N, 6, H, W) (H, W multiples of 32), sentence (N, sentence_dim) -> (N, out_ch, H, W)."""

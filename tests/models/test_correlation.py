@@ -1,6 +1,7 @@
 import torch
+import torch.nn.functional as F
 
-from cliport.models.correlation import direct_cross_correlation, fft_cross_correlation
+from cliport.models.correlation import direct_cross_correlation, fft_cross_correlation, transport_correlation
 
 
 def _inputs(b: int, r: int, c: int, hw: tuple[int, int], k: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -38,3 +39,20 @@ def test_fft_correlation_does_not_wrap_around() -> None:
     assert abs(float(out[-1, -1]) - 1.0) < 1e-5
     out[-1, -1] = 0.0
     assert float(out.abs().max()) < 1e-5
+
+
+def test_transport_correlation_is_the_padded_conv_resized_and_cropped() -> None:
+    """The reference's Transport.correlate: conv2d with padding crop / 2, bilinear resize to the key's size,
+    crop the padding."""
+    key, kernels = _inputs(b=2, r=3, c=3, hw=(40 + 16, 24 + 16), k=16)
+    out = transport_correlation(key, kernels)
+    expected = []
+    for i in range(2):
+        full = F.conv2d(key[i : i + 1], kernels[i], padding=8)
+        assert full.shape[-2:] == (57, 41)
+        expected.append(F.interpolate(full, size=(56, 40), mode="bilinear")[:, :, 8:-8, 8:-8])
+    expected = torch.cat(expected)
+    assert out.shape == expected.shape == (2, 3, 40, 24)
+    assert _rel(out, expected) < 1e-5
+    # The resize is not a no-op: the bottom-right outputs blend neighbours, unlike the plain valid correlation.
+    assert _rel(fft_cross_correlation(key, kernels)[..., :40, :24], expected) > 1e-3

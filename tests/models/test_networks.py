@@ -18,7 +18,7 @@ def clip() -> FrozenCLIP:
 
 def test_resnet43_real_size_shape_and_params() -> None:
     net = ResNet43_8s(6, 1)
-    assert 9.7e6 < _count(net) < 9.9e6
+    assert 9.8e6 < _count(net) < 9.85e6
     with torch.no_grad():
         assert net(torch.randn(1, 6, 320, 320)).shape == (1, 1, 320, 320)
 
@@ -27,7 +27,10 @@ def test_resnet45_laterals() -> None:
     net = ResNet45_10s(6, 3, width=0.125)
     out, laterals = net(torch.randn(2, 6, 64, 32))
     assert out.shape == (2, 3, 64, 32)
-    assert [tuple(t.shape[1:]) for t in laterals] == [(64, 4, 2), (32, 8, 4), (16, 16, 8), (8, 32, 16), (4, 64, 32)]
+    # The inputs of the five decoder stages and of the head, which runs at twice the input size.
+    assert [tuple(t.shape[1:]) for t in laterals] == [
+        (128, 4, 2), (64, 8, 4), (32, 16, 8), (16, 32, 16), (8, 64, 32), (4, 128, 64)
+    ]
 
 
 def test_two_stream_real_size_params(clip: FrozenCLIP) -> None:
@@ -107,7 +110,8 @@ def test_pick_head_pads_to_square_and_crops_back() -> None:
     x = torch.rand(2, 6, 64, 32)
     logits = head(x)
     assert seen == [(2, 6, 64, 64)]
-    assert torch.equal(logits, x[:, 3])
+    # Equal up to the reference's 0-degree kornia resampling, which is not exact (float32 rounding).
+    torch.testing.assert_close(logits, x[:, 3], rtol=0, atol=1e-5)
 
 
 def test_place_head_shapes_and_unrotated_crop() -> None:

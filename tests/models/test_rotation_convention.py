@@ -78,7 +78,7 @@ def test_place_head_decodes_world_yaw(theta_deg: int) -> None:
     logits = head(x, torch.tensor([PICK]))[0]
     k, u, v = np.unravel_index(int(torch.argmax(logits)), logits.shape)
     assert abs(u - PLACE[0]) <= 1 and abs(v - PLACE[1]) <= 1
-    assert _angle_error(k * 2 * math.pi / N_ROT, theta) <= 2 * math.pi / N_ROT / 2 + 1e-6
+    assert _angle_error(head.bin_yaw(int(k)), theta) <= 2 * math.pi / N_ROT / 2 + 1e-6
 
 
 def test_mirrored_convention_would_fail() -> None:
@@ -86,9 +86,11 @@ def test_mirrored_convention_would_fail() -> None:
     theta = math.radians(90)
     _, height = _scene(theta)
     x = torch.cat([torch.zeros(1, 3, H, W), torch.from_numpy(height)[None, None].expand(1, 3, H, W)], 1)
-    logits = PlaceHead(HeightPassThrough(), HeightPassThrough(), CROP, N_ROT)(x, torch.tensor([PICK]))[0]
-    k = int(torch.argmax(logits)) // (H * W)
-    assert _angle_error(k * 2 * math.pi / N_ROT, -theta) > math.radians(90)
+    head = PlaceHead(HeightPassThrough(), HeightPassThrough(), CROP, N_ROT)
+    k = int(torch.argmax(head(x, torch.tensor([PICK]))[0])) // (H * W)
+    assert _angle_error(head.bin_yaw(k), -theta) > math.radians(90)
+    # Bin k is the image rotated counter-clockwise on screen by k steps, i.e. world yaw -k steps.
+    assert k == round(-theta / (2 * math.pi / N_ROT)) % N_ROT
 
 
 @pytest.mark.parametrize("theta_deg", [60, 270])
