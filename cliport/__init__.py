@@ -10,7 +10,7 @@ import sys
 from collections.abc import Sequence
 from types import ModuleType
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 # Folders of the repository root that are installed as subpackages (pyproject.toml's package-dir).
 CHECKOUT_SUBPACKAGES = ("tasks", "configs")

@@ -94,12 +94,22 @@ def make_agent(name: str, config: AgentConfig | dict[str, Any] | None = None) ->
 
 
 def read_checkpoint(path: str | os.PathLike[str]) -> dict[str, Any]:
-    """A checkpoint's payload (see ``PickPlaceAgent.checkpoint_payload``); CheckpointError if unusable."""
+    """A checkpoint's payload (see ``PickPlaceAgent.checkpoint_payload``); CheckpointError if unusable, or
+    written with another checkpoint format (format 1: the networks from before reference parity)."""
+    from cliport.agents.base import CHECKPOINT_FORMAT
     from cliport.utils.files import load_torch
 
     payload = load_torch(path)
     if not isinstance(payload, dict) or not {"agent", "config", "state_dict"} <= set(payload):
         raise CheckpointError(f"{path} is not a cliport checkpoint (no agent, config and weights)")
+    written = payload.get("format", 1)
+    if written < CHECKPOINT_FORMAT:
+        raise CheckpointError(
+            f"{path} was written by cliport before 0.2.0 (checkpoint format {written}), whose networks differ from "
+            "the reference CLIPort's (README: Parity with the reference) and cannot load these weights; retrain it"
+        )
+    if written > CHECKPOINT_FORMAT:
+        raise CheckpointError(f"{path} was written by a newer cliport (checkpoint format {written}); upgrade cliport")
     return payload
 
 

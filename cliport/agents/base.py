@@ -13,6 +13,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from cliport import __version__
 from cliport.agents.config import AgentConfig
 from cliport.env.heightmap import BOUNDS, PIXEL_SIZE, pix_to_xyz
 from cliport.env.transforms import yaw_to_quat
@@ -22,7 +23,8 @@ from cliport.models.heads import PickHead, PlaceHead
 from cliport.models.preprocess import raw_input
 from cliport.utils.files import save_torch
 
-CHECKPOINT_FORMAT = 1
+#: 2 since the networks compute the reference CLIPort's functions (cliport 0.2.0); 1 before.
+CHECKPOINT_FORMAT = 2
 DEVICE_OPTIONS = ("channels_last", "bf16_clip", "fused_adam", "act_graphs")
 LossFn = Callable[[dict[str, Any]], tuple[torch.Tensor, dict[str, float]]]
 
@@ -222,7 +224,8 @@ class PickPlaceAgent(nn.Module):
         """Pick and place poses for one observation (``color`` (H, W, 3) uint8, ``height`` (H, W)).
 
         Returns pose0 / pose1 as ((x, y, z), quat xyzw) — pose0 with yaw 0, pose1 with the decoded
-        relative yaw — pick_pix and place_pix (u, v), place_rot (radians, in [0, 2*pi)), and the
+        relative yaw — pick_pix and place_pix (u, v), place_bin (the rotation bin k) and its yaw place_rot
+        (radians, in [0, 2*pi); see :meth:`PlaceHead.bin_yaw`), and the
         softmax heatmaps pick_heatmap (H, W) and place_heatmap (H, W) (max over rotations).
         Same as ``act_batch([obs], [instruction])[0]``.
         """
@@ -292,14 +295,15 @@ class PickPlaceAgent(nn.Module):
             pick = (int(pick_pix_np[i, 0]), int(pick_pix_np[i, 1]))
             rot_bin, rest = divmod(int(place_index_np[i]), h * w)
             place = (rest // w, rest % w)
-            place_rot = rot_bin * 2 * math.pi / n_rot
+            place_yaw = self.place.bin_yaw(rot_bin)
             results.append(
                 {
                     "pose0": (pix_to_xyz(pick, heights[i]), yaw_to_quat(0.0)),
-                    "pose1": (pix_to_xyz(place, heights[i]), yaw_to_quat(place_rot)),
+                    "pose1": (pix_to_xyz(place, heights[i]), yaw_to_quat(place_yaw)),
                     "pick_pix": pick,
                     "place_pix": place,
-                    "place_rot": place_rot,
+                    "place_rot": place_yaw % (2 * math.pi),
+                    "place_bin": rot_bin,
                     "pick_heatmap": pick_heatmaps[i],
                     "place_heatmap": place_heatmaps[i],
                 }
@@ -335,6 +339,7 @@ class PickPlaceAgent(nn.Module):
         """What a checkpoint holds: agent name, config, pretrained weight sources and trainable weights (CPU)."""
         return {
             "format": CHECKPOINT_FORMAT,
+            "cliport_version": __version__,
             "agent": self.name,
             "config": self.config.to_dict(),
             "clip_weights": self.clip_source(),

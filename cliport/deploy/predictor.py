@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -167,8 +166,6 @@ class Predictor:
             notes.append(f"{self.agent.name} ignores language: the instruction cannot change what it does")
         obs = {"color": color, "height": np.nan_to_num(height.astype(np.float32), nan=0.0)}
         act = self.agent.act(obs, instruction)
-        n_rot = int(self.agent.config.n_rotations)
-        rotation_bin = int(round(act["place_rot"] / (2 * math.pi / n_rot))) % n_rot
 
         def pose(pix: tuple[int, int], quat: Sequence[float]) -> dict[str, Any]:
             xyz = hm.pix_to_xyz(pix, obs["height"], self.bounds, hm.PIXEL_SIZE)
@@ -176,7 +173,7 @@ class Predictor:
 
         return Prediction(
             pick=pose(act["pick_pix"], act["pose0"][1]),
-            place={**pose(act["place_pix"], act["pose1"][1]), "rotation_bin": rotation_bin},
+            place={**pose(act["place_pix"], act["pose1"][1]), "rotation_bin": act["place_bin"]},
             instruction=instruction,
             checkpoint=self.checkpoint_path,
             obs=obs,

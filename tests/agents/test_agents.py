@@ -1,4 +1,5 @@
 import math
+import re
 import subprocess
 import sys
 import time
@@ -47,12 +48,7 @@ def _batch(targets: list[tuple[tuple[int, int], tuple[int, int], int, str]]) -> 
 
 def _hits(agent: PickPlaceAgent, target: tuple[tuple[int, int], tuple[int, int], int, str]) -> bool:
     out = agent.act(_scene(), target[3])
-    n_rot = agent.config.n_rotations
-    return (
-        out["pick_pix"] == target[0]
-        and out["place_pix"] == target[1]
-        and round(out["place_rot"] / (2 * math.pi / n_rot)) % n_rot == target[2]
-    )
+    return out["pick_pix"] == target[0] and out["place_pix"] == target[1] and out["place_bin"] == target[2]
 
 
 def _fit(agent: PickPlaceAgent, targets: list, max_steps: int, check_every: int) -> int | None:
@@ -108,7 +104,10 @@ def test_action_targets_follow_the_place_heads_convention() -> None:
     pose1 = np.array([[*pix_to_xyz((300, 5), height), *yaw_to_quat(1.0 - math.radians(45))]])
     pick, place, rot = agent.action_targets(pose0, pose1, (320, 160))
     assert pick.tolist() == [[12, 34]] and place.tolist() == [[300, 5]]
-    assert rot.tolist() == [7]  # -45 degrees = 315 degrees = bin 7 of 8 (45 degrees each)
+    assert rot.tolist() == [1]  # bin k of 8 stands for -k * 45 degrees (the reference's convention)
+    assert agent.place.bin_yaw(1) == pytest.approx(-math.radians(45))
+    pose1[0, 3:] = yaw_to_quat(1.0 + math.radians(90))
+    assert agent.action_targets(pose0, pose1, (320, 160))[2].tolist() == [6]
 
 
 @pytest.mark.parametrize("batch_size", [1, 3])
@@ -196,12 +195,33 @@ def test_checkpoint_round_trip(name: str, tmp_path: Path) -> None:
     assert payload["config"] == agent.config.to_dict()
     assert payload["clip_weights"] == ("random" if name == "two_stream" else None)
     assert not any("clip" in k for k in payload["state_dict"])
-    n_saved = sum(v.numel() for v in payload["state_dict"].values())
-    assert n_saved == sum(p.numel() for p in agent.trainable_parameters())
+    params = dict(agent.named_parameters())
+    saved_params = [v for k, v in payload["state_dict"].items() if k in params]
+    assert sum(v.numel() for v in saved_params) == sum(p.numel() for p in agent.trainable_parameters())
+    # Besides the weights only the U-Net batch norms' statistics (two_stream), never a frozen tensor.
+    others = {k.rsplit(".", 1)[-1] for k in payload["state_dict"] if k not in params}
+    assert others <= {"running_mean", "running_var", "num_batches_tracked"}
     torch.manual_seed(2)
     loaded = load_agent(path)
     assert type(loaded) is type(agent)
     _assert_same_act(agent, loaded, "put the red block in the green bowl")
+
+
+def test_checkpoints_of_the_pre_parity_networks_are_refused_in_one_line(tmp_path: Path) -> None:
+    from cliport.errors import CheckpointError
+
+    payload = make_agent("transporter_only", TINY).checkpoint_payload()
+    assert payload["format"] == 2 and payload["cliport_version"]
+    for fmt, phrase in ((1, "before 0.2.0 (checkpoint format 1)"), (3, "newer cliport (checkpoint format 3)")):
+        path = tmp_path / f"format{fmt}.pt"
+        torch.save({**payload, "format": fmt}, path)
+        with pytest.raises(CheckpointError, match=re.escape(phrase)) as err:
+            load_agent(path)
+        assert str(path) in str(err.value) and "\n" not in str(err.value)
+    old = {k: v for k, v in payload.items() if k not in ("format", "cliport_version")}  # before formats existed
+    torch.save(old, tmp_path / "old.pt")
+    with pytest.raises(CheckpointError, match="retrain"):
+        load_agent(tmp_path / "old.pt")
 
 
 @pytest.mark.slow

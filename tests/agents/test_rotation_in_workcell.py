@@ -21,7 +21,7 @@ def test_label_decode_and_execution_agree(theta_deg):
     pose0 = np.array([[0.45, 0.1, 0.03, *yaw_to_quat(0.0)]])
     pose1 = np.array([[0.55, -0.1, 0.03, *yaw_to_quat(theta)]])
     k = int(AGENT.action_targets(pose0, pose1, (320, 160))[2])  # the training label
-    decoded = k * 2 * math.pi / N_ROT  # what act() turns the argmax bin into (pose1 yaw, pose0 yaw 0)
+    decoded = AGENT.place.bin_yaw(k)  # what act() turns the argmax bin into (pose1 yaw, pose0 yaw 0)
     assert abs((decoded - theta + math.pi) % (2 * math.pi) - math.pi) <= math.pi / N_ROT + 1e-9
     with Environment(EnvConfig.defaults(camera_scale=0.5)) as env:
         env.reset(0)

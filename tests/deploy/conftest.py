@@ -17,8 +17,16 @@ TASK = "block-insertion"
 TINY = {"width": 0.125, "n_rotations": 4, "crop_size": 32}
 
 
-def make_run(root: str, agent_name: str = "transporter_only", agent_config: dict | None = None) -> str:
-    """A run folder holding config.json, checkpoints/step-000001.pt, last.pt and val.json (best = 1)."""
+def make_run(
+    root: str, agent_name: str = "transporter_only", agent_config: dict | None = None, sharpen_on: dict | None = None
+) -> str:
+    """A run folder holding config.json, checkpoints/step-000001.pt, last.pt and val.json (best = 1).
+
+    ``sharpen_on``: an observation (``color``, ``height``) the agent is first trained on for a few steps,
+    towards picking its highest pixel and placing it back there, so that its heatmaps have clear maxima
+    that a small change of the input does not move (an untrained agent's are nearly flat).
+    """
+    import numpy as np
     import torch
 
     from cliport.agents import make_agent
@@ -33,6 +41,20 @@ def make_run(root: str, agent_name: str = "transporter_only", agent_config: dict
     write_json(run.config, config.to_dict())
     torch.manual_seed(0)
     agent = make_agent(agent_name, config.agent_config)
+    if sharpen_on is not None:
+        height = sharpen_on["height"]
+        pick = np.unravel_index(int(np.argmax(height)), height.shape)
+        batch = {
+            "color": torch.from_numpy(sharpen_on["color"])[None],
+            "height": torch.from_numpy(height)[None],
+            "pick_pix": torch.tensor([pick]),
+            "place_pix": torch.tensor([pick]),
+            "place_rot": torch.tensor([0]),
+            "lang": ["insert the block"],
+        }
+        optimizer = torch.optim.Adam(agent.trainable_parameters(), lr=1e-3)
+        for _ in range(40):
+            agent.train_step(batch, optimizer)
     agent.save_checkpoint(run.checkpoint(1))
     agent.save_checkpoint(run.checkpoint("last"))
     write_json(run.val, {"best_step": 1, "checkpoints": {"1": {"mean_score": 0.0}}})
@@ -77,8 +99,8 @@ def sim_scene():
 
 
 @pytest.fixture(scope="session")
-def tiny_run(tmp_path_factory):
-    return make_run(str(tmp_path_factory.mktemp("run")))
+def tiny_run(tmp_path_factory, sim_scene):
+    return make_run(str(tmp_path_factory.mktemp("run")), sharpen_on=sim_scene[0])
 
 
 @pytest.fixture

@@ -49,7 +49,7 @@ def test_float_depth_files_fuse_identically_and_give_the_same_action(
     assert np.array_equal(np.load(stem + "-height.npy"), obs["height"])
     assert result["pick"]["pixel"] == list(sim_action["pick_pix"])
     assert result["place"]["pixel"] == list(sim_action["place_pix"])
-    assert result["place"]["rotation_bin"] == round(sim_action["place_rot"] / (2 * np.pi / 4)) % 4
+    assert result["place"]["rotation_bin"] == sim_action["place_bin"]
     assert result["pick"]["xyz"] == pytest.approx(list(sim_action["pose0"][0]), abs=1e-6)
     assert result["place"]["quat"] == pytest.approx(list(sim_action["pose1"][1]), abs=1e-6)
     assert result["instruction"] == lang and result["checkpoint"] == RunDir(tiny_run).checkpoint(1)
