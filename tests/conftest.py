@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import math
 import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -14,6 +16,11 @@ from cliport.env.transforms import yaw_to_quat
 
 def pytest_addoption(parser: pytest.Parser) -> None:
     parser.addoption("--runslow", action="store_true", default=False, help="also run tests marked slow")
+    parser.addoption(
+        "--reference-dir",
+        default=None,
+        help="folder of the reference CLIPort code for the parity tests (default: $CLIPORT_REFERENCE_DIR)",
+    )
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
@@ -29,6 +36,32 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
                 cuda = torch.cuda.is_available()
             if not cuda:
                 item.add_marker(pytest.mark.skip(reason="gpu: no CUDA device"))
+
+
+@pytest.fixture(scope="session")
+def reference_dir(pytestconfig: pytest.Config) -> str:
+    """The reference CLIPort folder (``--reference-dir`` or ``$CLIPORT_REFERENCE_DIR``); skips without one."""
+    folder = pytestconfig.getoption("--reference-dir") or os.environ.get("CLIPORT_REFERENCE_DIR")
+    if not folder:
+        pytest.skip("parity test: no reference CLIPort code (set CLIPORT_REFERENCE_DIR or --reference-dir)")
+    if not os.path.isfile(os.path.join(folder, "build_reference.py")):
+        pytest.skip(f"parity test: {folder} does not hold the reference CLIPort code (no build_reference.py)")
+    return os.path.abspath(folder)
+
+
+@pytest.fixture(scope="session")
+def reference_oracle(reference_dir: str):
+    """A function running ``tests/reference_oracle.py --reference-dir R ARGS...`` in a subprocess."""
+
+    def run(*args: str) -> None:
+        script = os.path.join(os.path.dirname(__file__), "reference_oracle.py")
+        done = subprocess.run(
+            [sys.executable, script, "--reference-dir", reference_dir, *args], capture_output=True, text=True
+        )
+        if done.returncode:
+            raise AssertionError(f"reference oracle {' '.join(args[:2])} failed:\n{done.stderr[-4000:]}")
+
+    return run
 
 
 def _synthetic_dataset(root: str, n_episodes: int = 3) -> str:
