@@ -64,6 +64,21 @@ def reference_oracle(reference_dir: str):
     return run
 
 
+def _reference_image(obs: dict[str, np.ndarray]):
+    """The reference agents' input for an observation: colour 0..255 and the height repeated 3x, (H, W, 6)
+    float32 (a torch tensor, for the oracle's request files)."""
+    import torch
+
+    height = obs["height"][..., None].repeat(3, axis=-1)
+    return torch.from_numpy(np.concatenate([obs["color"].astype(np.float32), height], axis=-1))
+
+
+@pytest.fixture(scope="session")
+def reference_image():
+    """:func:`_reference_image`: observation -> the reference agents' (H, W, 6) input."""
+    return _reference_image
+
+
 def _synthetic_dataset(root: str, n_episodes: int = 3) -> str:
     """Episodes whose images carry unique markers at the pick and place pixels."""
     folder = os.path.join(root, "place-red-in-green-train")

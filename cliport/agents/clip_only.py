@@ -23,10 +23,13 @@ class CLIPOnlyAgent(PickPlaceAgent):
 
     def __init__(self, config: CLIPConfig, encoder: FrozenEncoder | None = None) -> None:
         encoder = encoder if encoder is not None else load_clip(config.clip_weights, config.semantic_encoder)
-        pick = PickHead(SemanticNet(encoder, 1, config.width))
+        own = config.per_net_clip_stats
+        pick = PickHead(SemanticNet(encoder, 1, config.width, own_norm_stats=own))
         place = PlaceHead(
-            SemanticNet(encoder, PLACE_FEATURES, config.width),
-            SemanticNet(encoder, PLACE_FEATURES, config.width, samples_per_group=config.n_rotations),
+            SemanticNet(encoder, PLACE_FEATURES, config.width, own_norm_stats=own),
+            SemanticNet(
+                encoder, PLACE_FEATURES, config.width, samples_per_group=config.n_rotations, own_norm_stats=own
+            ),
             config.crop_size,
             config.n_rotations,
         )

@@ -55,10 +55,14 @@ class CLIPConfig(AgentConfig):
             and benchmarks only, recorded as such).
         semantic_encoder: the open_clip model of the semantic stream, any with a text tower whose tokenizer
             ships with open_clip: "RN50-quickgelu" (CLIPort's), "RN101-quickgelu", "ViT-B-16", ...
+        per_net_clip_stats: each net (pick, key, query) keeps its own copy of the CLIP trunk's batch-norm
+            statistics, as the reference's checkpoints do (cliport-convert sets it); false: the one
+            shared CLIP's own statistics.
     """
 
     clip_weights: str
     semantic_encoder: str
+    per_net_clip_stats: bool
 
     def validate(self) -> None:
         """As :meth:`AgentConfig.validate`, and the encoder name must be an open_clip model we can use."""

@@ -23,10 +23,13 @@ class TwoStreamAgent(PickPlaceAgent):
 
     def __init__(self, config: CLIPConfig, encoder: FrozenEncoder | None = None) -> None:
         encoder = encoder if encoder is not None else load_clip(config.clip_weights, config.semantic_encoder)
-        pick = PickHead(TwoStreamNet(encoder, 1, "add", config.width))
+        own = isinstance(config, CLIPConfig) and config.per_net_clip_stats  # RN50-BERT has no CLIP
+        pick = PickHead(TwoStreamNet(encoder, 1, "add", config.width, own_norm_stats=own))
         place = PlaceHead(
-            TwoStreamNet(encoder, PLACE_FEATURES, "conv", config.width),
-            TwoStreamNet(encoder, PLACE_FEATURES, "conv", config.width, samples_per_group=config.n_rotations),
+            TwoStreamNet(encoder, PLACE_FEATURES, "conv", config.width, own_norm_stats=own),
+            TwoStreamNet(
+                encoder, PLACE_FEATURES, "conv", config.width, samples_per_group=config.n_rotations, own_norm_stats=own
+            ),
             config.crop_size,
             config.n_rotations,
         )

@@ -9,7 +9,9 @@ from those numbers.
 
 from __future__ import annotations
 
+import contextlib
 import logging
+from collections.abc import Iterator
 
 import torch
 from torch import nn
@@ -80,13 +82,45 @@ class FrozenEncoder(nn.Module):
         raise NotImplementedError
 
     @torch.no_grad()
-    def image_features(self, rgb: torch.Tensor) -> list[torch.Tensor]:
+    def image_features(
+        self, rgb: torch.Tensor, norm_stats: dict[str, torch.Tensor] | None = None
+    ) -> list[torch.Tensor]:
         """Trunk features of RGB images with values in [0, 1] (H, W multiples of 32).
 
         (N, 3, H, W) -> five float32 maps (N, trunk_channels[i], H / s, W / s) for the strides s of
-        :data:`TRUNK_STRIDES`.
+        :data:`TRUNK_STRIDES`. ``norm_stats``: batch-norm statistics to use instead of the trunk's own for
+        this call (names as in :meth:`norm_stats`), e.g. one net's of a converted reference checkpoint.
         """
-        return [f.float() for f in self._trunk(rgb.float())]
+        with self._swapped_buffers(norm_stats or {}):
+            return [f.float() for f in self._trunk(rgb.float())]
+
+    def norm_stats(self) -> dict[str, torch.Tensor]:
+        """The running means and variances of the image trunk's batch norms, by name within
+        :meth:`image_module` (empty for a trunk without batch norms)."""
+        return {
+            name: buffer
+            for name, buffer in self.image_module().named_buffers()
+            if name.endswith((".running_mean", ".running_var")) or name in ("running_mean", "running_var")
+        }
+
+    @contextlib.contextmanager
+    def _swapped_buffers(self, buffers: dict[str, torch.Tensor]) -> Iterator[None]:
+        # Not thread-safe: an agent runs one forward at a time (see Predictor).
+        module = self.image_module()
+        saved = []
+        try:
+            for name, value in buffers.items():
+                owner_name, _, attr = name.rpartition(".")
+                owner = module.get_submodule(owner_name)
+                current = owner._buffers[attr]
+                if current is None:
+                    raise KeyError(f"the image trunk has no buffer {name}")
+                saved.append((owner, attr, current))
+                owner._buffers[attr] = value.to(device=current.device, dtype=current.dtype)
+            yield
+        finally:
+            for owner, attr, original in saved:
+                owner._buffers[attr] = original
 
     @torch.no_grad()
     def sentence_features(self, texts: list[str]) -> torch.Tensor:
@@ -105,3 +139,18 @@ class FrozenEncoder(nn.Module):
     def _apply(self, fn, recurse: bool = True):  # type: ignore[no-untyped-def]
         self._sentence_cache.clear()
         return super()._apply(fn, recurse)
+
+
+class NormStats(nn.Module):
+    """One net's own batch-norm statistics for a shared frozen encoder's image trunk (buffers, saved in
+    checkpoints with the net's weights). Names are those of :meth:`FrozenEncoder.norm_stats`."""
+
+    def __init__(self, stats: dict[str, torch.Tensor]) -> None:
+        super().__init__()
+        for name, value in stats.items():
+            self.register_buffer(name.replace(".", "__"), value.detach().clone().float())
+
+    def as_dict(self) -> dict[str, torch.Tensor]:
+        """``{trunk buffer name: tensor}``."""
+        return {name.replace("__", "."): value for name, value in self.named_buffers()}
+

@@ -21,6 +21,10 @@ REFERENCE_AGENTS: dict[str, tuple[str, ...]] = {
 }
 
 
+#: Our prefix (within a net) of its own CLIP batch-norm statistics (``NormStats``, per_net_clip_stats).
+STATS = "encoder_stats."
+
+
 def _stages(ours: str, theirs: list[str]) -> list[tuple[str, str]]:
     return [(f"{ours}.{i}.", f"{ref}.") for i, ref in enumerate(theirs)]
 
@@ -64,6 +68,7 @@ def _lingunet(ours: str, laterals: bool) -> list[tuple[str, str]]:
 class _Net:
     ours: str  # our prefix of the net, e.g. "place.key_net."
     rules: tuple[tuple[str, str], ...]  # (our prefix within the net, the reference's full prefix)
+    clip: str | None  # the reference's prefix of the net's own CLIP copy
 
 
 #: Per agent: our net prefix and the reference's prefixes of its stream one, stream two and stream fusion.
@@ -90,7 +95,8 @@ def _nets(agent: str) -> list[_Net]:
     if agent not in _STREAMS:
         raise KeyError(f"no reference counterpart for agent {agent!r}; agents with one: {sorted(REFERENCE_AGENTS)}")
     nets = []
-    for ours, one, two, fusion in _STREAMS[agent]:
+    clips = frozen_prefixes(agent) or (None,) * len(_STREAMS[agent])
+    for (ours, one, two, fusion), clip in zip(_STREAMS[agent], clips, strict=True):
         if agent == "transporter_only":
             rules = [(a, one + b) for a, b in _resnet43()]
         elif agent == "clip_only":
@@ -101,7 +107,7 @@ def _nets(agent: str) -> list[_Net]:
             rules += [(a, two + b) for a, b in _lingunet("semantic", laterals=True)]
             if fusion is not None:
                 rules.append(("fuse.", fusion + "conv.1."))
-        nets.append(_Net(ours, tuple(rules)))
+        nets.append(_Net(ours, tuple(rules), clip))
     return nets
 
 
@@ -111,6 +117,8 @@ def reference_name(agent: str, key: str) -> str:
         if not key.startswith(net.ours):
             continue
         inner = key[len(net.ours) :]
+        if inner.startswith(STATS) and net.clip is not None:  # the net's own CLIP batch-norm statistics
+            return net.clip + "visual." + inner[len(STATS) :].replace("__", ".")
         matches = [(a, b) for a, b in net.rules if inner.startswith(a)]
         if matches:
             ours, theirs = max(matches, key=lambda rule: len(rule[0]))
@@ -120,7 +128,8 @@ def reference_name(agent: str, key: str) -> str:
 
 
 def frozen_prefixes(agent: str) -> tuple[str, ...]:
-    """The reference's prefixes of frozen encoder tensors (its per-net CLIP copies)."""
+    """The reference's prefixes of frozen encoder tensors (its per-net CLIP copies), in the order pick,
+    key, query."""
     if agent == "transporter_only":
         return ()
     semantic = 2 if agent == "two_stream" else 1  # the stream that holds the CLIP copy

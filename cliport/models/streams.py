@@ -13,7 +13,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from cliport.models.blocks import LateralFusion, UpBlock, UpStage, resize, scaled
-from cliport.models.encoders import FrozenEncoder
+from cliport.models.encoders import FrozenEncoder, NormStats
 from cliport.models.preprocess import IN_CHANNELS, transporter_normalize
 from cliport.models.resnet import ResNet43_8s, ResNet45_10s
 
@@ -101,22 +101,38 @@ class SemanticDecoder(nn.Module):
         return self.fusions[i](x, laterals[i])
 
 
+def encoder_features(net: TwoStreamNet | SemanticNet, x: torch.Tensor) -> list[torch.Tensor]:
+    """The frozen encoder's trunk features of the RGB channels of x (N, 6, H, W), with the net's own
+    batch-norm statistics when it keeps them: the reference's three CLIP copies (pick, key, query) each
+    let their statistics drift in training, and its checkpoints act with each net's own."""
+    stats = net.encoder_stats.as_dict() if net.encoder_stats is not None else None
+    return net.encoder.image_features(x[:, :3], stats)
+
+
 class TwoStreamNet(nn.Module):
     """CLIPort net: spatial ResNet45_10s stream + frozen-encoder semantic stream, fused.
 
     The frozen encoder (CLIP, or RN50 + DistilBERT) is shared between nets and is not a trainable part
     of this one. ``fusion="add"`` sums the two streams' outputs (pick); ``fusion="conv"`` applies ReLU +
     1x1 conv without bias (2*out -> out) to [spatial, semantic] (key and query).
-    ``samples_per_group``: see :class:`SemanticDecoder`.
+    ``samples_per_group``: see :class:`SemanticDecoder`. ``own_norm_stats``: the net keeps its own copy of
+    the encoder trunk's batch-norm statistics (:class:`NormStats`, see :func:`encoder_features`).
     """
 
     def __init__(
-        self, encoder: FrozenEncoder, out_ch: int, fusion: str, width: float = 1.0, samples_per_group: int = 1
+        self,
+        encoder: FrozenEncoder,
+        out_ch: int,
+        fusion: str,
+        width: float = 1.0,
+        samples_per_group: int = 1,
+        own_norm_stats: bool = False,
     ) -> None:
         super().__init__()
         if fusion not in ("add", "conv"):
             raise ValueError(f"fusion must be 'add' or 'conv', got {fusion!r}")
         self.encoder = encoder
+        self.encoder_stats = NormStats(encoder.norm_stats()) if own_norm_stats else None
         self.spatial = ResNet45_10s(IN_CHANNELS, out_ch, width)
         self.semantic = SemanticDecoder(encoder, out_ch, self.spatial.lateral_widths, width, samples_per_group)
         self.fuse = nn.Conv2d(2 * out_ch, out_ch, 1, bias=False) if fusion == "conv" else None
@@ -126,7 +142,7 @@ class TwoStreamNet(nn.Module):
         if sentence is None:
             raise ValueError("the two-stream net needs a sentence feature")
         spatial, laterals = self.spatial(transporter_normalize(x))
-        semantic = self.semantic(self.encoder.image_features(x[:, :3]), sentence, laterals, x.shape[-2:])
+        semantic = self.semantic(encoder_features(self, x), sentence, laterals, x.shape[-2:])
         if self.fuse is None:
             return spatial + semantic
         return self.fuse(F.relu(torch.cat([spatial, semantic], dim=1)))
@@ -135,16 +151,25 @@ class TwoStreamNet(nn.Module):
 class SemanticNet(nn.Module):
     """CLIPort's CLIP-only net: the frozen-encoder semantic stream alone (no spatial stream, no laterals).
 
-    Reads only the RGB channels of its input; the height channels are not seen.
+    Reads only the RGB channels of its input; the height channels are not seen. ``own_norm_stats``: as
+    for :class:`TwoStreamNet`.
     """
 
-    def __init__(self, encoder: FrozenEncoder, out_ch: int, width: float = 1.0, samples_per_group: int = 1) -> None:
+    def __init__(
+        self,
+        encoder: FrozenEncoder,
+        out_ch: int,
+        width: float = 1.0,
+        samples_per_group: int = 1,
+        own_norm_stats: bool = False,
+    ) -> None:
         super().__init__()
         self.encoder = encoder
+        self.encoder_stats = NormStats(encoder.norm_stats()) if own_norm_stats else None
         self.semantic = SemanticDecoder(encoder, out_ch, None, width, samples_per_group)
 
     def forward(self, x: torch.Tensor, sentence: torch.Tensor | None = None) -> torch.Tensor:
         """Raw (N, 6, H, W) (H, W multiples of 32), sentence (N, sentence_dim) -> (N, out_ch, H, W)."""
         if sentence is None:
             raise ValueError("the semantic net needs a sentence feature")
-        return self.semantic(self.encoder.image_features(x[:, :3]), sentence, None, x.shape[-2:])
+        return self.semantic(encoder_features(self, x), sentence, None, x.shape[-2:])

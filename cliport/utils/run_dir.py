@@ -65,7 +65,8 @@ class RunDir:
         return sorted(int(m.group(1)) for f in os.listdir(folder) if (m := _STEP_FILE.fullmatch(f)))
 
     def resolve(self, which: str, val_step: int | None = None, allow_all: bool = True) -> list[int | str]:
-        """The checkpoints ``which`` names: ``"best"`` (``val_step``, the step val.json chose), ``"last"``,
+        """The checkpoints ``which`` names: ``"best"`` (``val_step``, the step val.json chose, or the only
+        scheduled checkpoint of a run without validation results), ``"last"``,
         ``"all"`` (every scheduled one, where allowed) or one saved step; RunDirError / ConfigError naming
         the problem."""
         from cliport.errors import ConfigError, RunDirError
@@ -80,6 +81,8 @@ class RunDir:
         if which == LAST:
             return [LAST]
         if which == "best":
+            if val_step is None and len(steps) == 1:  # e.g. a converted reference checkpoint
+                return [steps[0]]
             if val_step is None:
                 raise RunDirError(
                     f"no validation results in {self.root} ({VAL}) to pick the best checkpoint: use "

@@ -38,18 +38,12 @@ def observation() -> dict[str, np.ndarray]:
     return {"color": obs["color"], "height": obs["height"]}
 
 
-def _reference_image(obs: dict[str, np.ndarray]) -> torch.Tensor:
-    """The reference agents' input: colour 0..255 and the height repeated 3x, (H, W, 6) float32."""
-    height = obs["height"][..., None].repeat(3, axis=-1)
-    return torch.from_numpy(np.concatenate([obs["color"].astype(np.float32), height], axis=-1))
-
-
 @pytest.fixture(scope="module")
-def reference_runs(reference_oracle, observation, tmp_path_factory) -> dict[str, dict[str, Any]]:
+def reference_runs(reference_oracle, reference_image, observation, tmp_path_factory) -> dict[str, dict[str, Any]]:
     """Per agent: the oracle's checkpoint, CLIP state dict and act() record on the observation."""
     folder = tmp_path_factory.mktemp("reference")
     request = folder / "request.pt"
-    torch.save({"images": [_reference_image(observation)], "lang": [LANG]}, request)
+    torch.save({"images": [reference_image(observation)], "lang": [LANG]}, request)
     runs = {}
     for agent in AGENTS:
         ref_name = reference_names.REFERENCE_AGENTS[agent][0]
