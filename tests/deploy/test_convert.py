@@ -162,3 +162,43 @@ def test_the_safe_loader_keeps_lightning_data_classes(transporter_ckpt, tmp_path
 
     summary = convert_checkpoint(str(with_hp), str(tmp_path / "run"))
     assert summary["agent"] == "transporter_only" and summary["task"] == TASK
+
+
+@pytest.fixture(scope="module")
+def converted_run(transporter_ckpt, tmp_path_factory) -> str:
+    from cliport.deploy.convert import convert_checkpoint
+
+    run = str(tmp_path_factory.mktemp("converted") / "run")
+    convert_checkpoint(str(transporter_ckpt[0]), run)
+    return run
+
+
+def test_cliport_eval_runs_a_converted_run_end_to_end(converted_run, tmp_path, capsys) -> None:
+    from cliport.cli import eval as eval_cli
+
+    capsys.readouterr()
+    argv = ["--run-dir", converted_run, "--task", "block-insertion", "--mode", "test", "--n-episodes", "1",
+            "--workers", "1", "--camera-scale", "0.5", "--out", str(tmp_path), "--no-progress"]  # fmt: skip
+    run_cli(lambda: eval_cli.main(argv))
+    result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert result["agent"] == "transporter_only" and result["checkpoint"] == 2000 and result["n_episodes"] == 1
+
+
+@pytest.mark.slow  # a published-size transporter training step and a demo: ~1-2 minutes on 2 CPU cores
+def test_cliport_train_resumes_a_converted_run(converted_run, tmp_path, capsys) -> None:
+    """One more optimiser step from the converted weights: last.pt moves on, the converted checkpoint stays."""
+    from cliport.cli import demos as demos_cli
+    from cliport.cli import train as train_cli
+
+    data = str(tmp_path / "data")
+    run_cli(lambda: demos_cli.main(["--task", TASK, "--mode", "train", "--n", "1", "--data-dir", data,
+                                    "--workers", "1", "--no-progress"]))  # fmt: skip
+    rd = RunDir(converted_run)
+    before = torch.load(rd.checkpoint(2000), weights_only=True)["state_dict"]
+    run_cli(lambda: train_cli.main(["--resume", "--run-dir", converted_run, "--n-steps", "2001", "--n-demos", "1",
+                                    "--data-dir", data, "--val-episodes", "0", "--no-progress"]))  # fmt: skip
+    last = torch.load(rd.checkpoint("last"), weights_only=True)
+    assert last["trainer"]["step"] == 2001 and not os.path.samefile(rd.checkpoint(2000), rd.checkpoint("last"))
+    after = torch.load(rd.checkpoint(2000), weights_only=True)["state_dict"]
+    assert all(torch.equal(before[k], after[k]) for k in before)  # the converted checkpoint is untouched
+    assert any(not torch.equal(before[k], last["state_dict"][k]) for k in before)  # training moved the weights
