@@ -52,6 +52,12 @@ def names() -> list[str]:
     return sorted(_REGISTRY)
 
 
+def place_yaw_informative(name: str) -> bool:
+    """Whether any task of ``name`` (a task or a multi-task group) needs place rotations, i.e. its
+    expert's place yaw carries information (see ``Task.place_yaw_informative``)."""
+    return any(_REGISTRY[task].place_yaw_informative for task in resolve(name))
+
+
 def groups() -> dict[str, list[str]]:
     """All multi-task groups by name."""
     _discover()

@@ -73,6 +73,10 @@ class Task:
     primitive_settings: PickPlaceSettings | PushSettings = PickPlaceSettings()
     lang_template: str | None = None  # fixed instruction of a task without per-step language
     done_sentence: str = "done."
+    #: Whether the expert's place yaw carries information: False where no goal checks an object's yaw
+    #: (round targets, zones and beads reached without turning), so its place yaw is random or always 0
+    #: and one place rotation suffices (``cliport-train`` then defaults to ``--n-rotations 1``).
+    place_yaw_informative: bool = True
 
     def __init__(self, mode: str = "train"):
         if mode not in ("train", "val", "test"):

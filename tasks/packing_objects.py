@@ -39,6 +39,7 @@ class PackingObjects(ZoneOracleMixin):
 
     unseen = False
     max_steps = 10  # set per episode to targets + 1
+    place_yaw_informative = False  # objects are packed without turning (place yaw 0)
     lang_template = None
     done_sentence = "done packing objects."
     interior_range = (0.2, 0.3)

@@ -24,6 +24,7 @@ class PlaceRedInGreen(Task):
     """
 
     max_steps = 10
+    place_yaw_informative = False  # round bowls: the expert places at a bowl's random yaw
     lang_template = "put the red blocks in a green bowl"
 
     def reset(self, env, rng: np.random.Generator) -> None:

@@ -24,6 +24,7 @@ class _PutBlockInBowl(Task):
 
     unseen = False
     max_steps = 10
+    place_yaw_informative = False  # round bowls: the expert places at a bowl's random yaw
     done_sentence = "done placing blocks in bowls."
 
     def reset(self, env, rng: np.random.Generator) -> None:

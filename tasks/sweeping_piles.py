@@ -84,6 +84,7 @@ class PileTask(Task):
     """Shared pusher for pile tasks: the current step's zone metric drives a farthest-cube-first oracle."""
 
     max_steps = 20
+    place_yaw_informative = False  # the spatula's direction comes from the push, not the yaw
     end_effector = "spatula"
     primitive = "push"
     primitive_settings = PushSettings(speed=0.003)

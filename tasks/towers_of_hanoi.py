@@ -41,6 +41,7 @@ class _TowersScene(Task):
     """
 
     max_steps = 14
+    place_yaw_informative = False  # round rings, placed without turning (place yaw 0)
     done_sentence = "solved towers of hanoi."
 
     def ring_colors(self, rng: np.random.Generator) -> list[str]:

@@ -335,6 +335,15 @@ class PickPlaceAgent(nn.Module):
         """``{config field: source}`` of every pretrained part (e.g. ``{"clip_weights": "openai"}``)."""
         return {field: getattr(self.config, field) for field in self.weight_sources}
 
+    def describe(self) -> dict[str, Any]:
+        """What every result of this agent records about it: name, pretrained weight sources and rotation count."""
+        return {
+            "agent": self.name,
+            "clip_weights": self.clip_source(),
+            "weight_sources": self.weight_source_values(),
+            "n_rotations": self.config.n_rotations,
+        }
+
     def checkpoint_payload(self) -> dict[str, Any]:
         """What a checkpoint holds: agent name, config, pretrained weight sources and trainable weights (CPU)."""
         return {

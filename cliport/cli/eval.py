@@ -112,14 +112,7 @@ def main(argv: list[str] | None = None) -> None:
                     video_fps=config.video_fps,
                     engine=engines[name],
                 )
-                result.update(
-                    checkpoint=which,
-                    checkpoint_file=path,
-                    agent=agent.name,
-                    clip_weights=agent.clip_source(),
-                    weight_sources=agent.weight_source_values(),
-                    run_dir=source,
-                )
+                result.update(checkpoint=which, checkpoint_file=path, **agent.describe(), run_dir=source)
                 write_json(os.path.join(out, f"{name}-{config.mode}-{which}.json"), result)
                 summary = {k: v for k, v in result.items() if k != "episodes"}
                 print(json.dumps(summary))

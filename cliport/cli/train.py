@@ -76,7 +76,22 @@ def config_from_args(args: argparse.Namespace, dests: list[str]):
         return TrainConfig.build(given, base=saved.to_dict())
     if not given.get("task"):
         raise ConfigError("--task is required")
-    return TrainConfig.build(given)
+    return TrainConfig.build(_rotation_default(given))
+
+
+def _rotation_default(given: dict[str, Any]) -> dict[str, Any]:
+    """One place rotation by default for tasks whose expert's place yaw carries no information (noted
+    on stderr); given --n-rotations always wins."""
+    from cliport import tasks
+
+    if "n_rotations" in given.get("agent_config", {}) or tasks.place_yaw_informative(given["task"]):
+        return given
+    print(
+        f"note: the place yaw of {given['task']} carries no information (nothing checks it), so the agent "
+        "trains with one place rotation (one query crop per sample); pass --n-rotations to choose another count",
+        file=sys.stderr,
+    )
+    return {**given, "agent_config": {**given.get("agent_config", {}), "n_rotations": 1}}
 
 
 def main(argv: list[str] | None = None) -> None:
