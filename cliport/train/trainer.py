@@ -24,7 +24,8 @@ from tqdm import tqdm
 from cliport.agents.base import optimizer_step
 from cliport.errors import RunDirError, UserError
 from cliport.train.config import TrainConfig
-from cliport.utils.device import resolve_device
+from cliport.train.resume import load_optimizer_state
+from cliport.utils.device import bf16_native, resolve_device
 from cliport.utils.files import load_torch, save_torch, write_json
 from cliport.utils.run_dir import RunDir
 
@@ -175,7 +176,7 @@ def train(
         if payload["agent"] != config.agent:
             raise TrainError(f"{last_path} is a checkpoint of agent {payload['agent']!r}, not {config.agent!r}")
         agent.load_trainable_state_dict(payload["state_dict"])
-        optimizer.load_state_dict(payload["trainer"]["optimizer"])
+        load_optimizer_state(optimizer, payload["trainer"]["optimizer"])  # into this device's layout and Adam
         step = int(payload["trainer"]["step"])
         torch.set_rng_state(payload["trainer"]["torch_rng"])
     if rank == 0:
@@ -185,7 +186,7 @@ def train(
     model: nn.Module = _LossModule(agent)
     if world > 1:
         model = nn.parallel.DistributedDataParallel(model, device_ids=[local_rank] if device.type == "cuda" else None)
-    use_amp = config.amp == "bf16" or (config.amp == "auto" and device.type == "cuda")
+    use_amp = config.amp == "bf16" or (config.amp == "auto" and bf16_native(device))
     autocast = torch.autocast(device.type, dtype=torch.bfloat16) if use_amp else contextlib.nullcontext()
 
     generator = torch.Generator().manual_seed(config.seed * 7919 + rank + step)
