@@ -122,6 +122,8 @@ class TrainConfig:
             raise ConfigError(f"amp must be auto, bf16 or none, got {self.amp!r}")
         if self.env.camera_scale <= 0:
             raise ConfigError(f"camera_scale must be > 0, got {self.env.camera_scale}")
+        if self.env.renderer not in ("auto", "egl", "cpu"):
+            raise ConfigError(f"renderer must be auto, egl or cpu, got {self.env.renderer!r}")
         self.agent_config.validate()
 
     def resolved_run_dir(self) -> str:

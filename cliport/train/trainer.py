@@ -22,6 +22,7 @@ from torch.utils.data import DataLoader, RandomSampler
 from tqdm import tqdm
 
 from cliport.agents.base import optimizer_step
+from cliport.env.environment import expected_renderer
 from cliport.errors import RunDirError, UserError
 from cliport.train.config import TrainConfig
 from cliport.train.resume import load_optimizer_state
@@ -135,7 +136,8 @@ def _check_start(config: TrainConfig, resume: bool) -> RunDir:
     return run
 
 
-def _check_demo_camera_scale(dataset: Any, config: TrainConfig) -> None:
+def _check_demo_rendering(dataset: Any, config: TrainConfig) -> None:
+    """Validation must render as the demos were rendered: same camera scale, same renderer."""
     if config.val_episodes == 0:
         return
     for task, scale in dataset.recorded_camera_scales().items():
@@ -143,6 +145,14 @@ def _check_demo_camera_scale(dataset: Any, config: TrainConfig) -> None:
             raise TrainError(
                 f"the {task} demos were rendered at camera_scale {scale} but validation would render at "
                 f"{config.env.camera_scale}: pass --camera-scale {scale}"
+            )
+    validation = expected_renderer(config.env.renderer)
+    for task, renderer in dataset.recorded_renderers().items():
+        if renderer is not None and renderer != validation:
+            flag = "cpu" if renderer == "tiny" else "egl"
+            raise TrainError(
+                f"the {task} demos were rendered with {renderer} but validation would render with {validation} "
+                f"(renderer {config.env.renderer!r} on this machine): pass --renderer {flag}"
             )
 
 
@@ -167,7 +177,7 @@ def train(
     dataset = DemoDataset(
         config.data_dir, config.task, "train", config.n_demos, seed=config.seed, rotation_aug=config.rotation_aug
     )
-    _check_demo_camera_scale(dataset, config)
+    _check_demo_rendering(dataset, config)
     optimizer = agent.make_optimizer()
 
     step = 0
