@@ -226,7 +226,9 @@ def generate(
                         pending.add(pool.submit(_worker_run, seed, episode_path(folder, seed), meta, config.raw_images))
                     if not pending:
                         break
-                    finished, pending = cf.wait(pending, return_when=cf.FIRST_COMPLETED)
+                    # Bounded: a Ctrl-C landing just before an unbounded wait would only be seen when a
+                    # demo finishes (up to a minute for the pile tasks).
+                    finished, pending = cf.wait(pending, timeout=1.0, return_when=cf.FIRST_COMPLETED)
                     for future in finished:
                         record(future.result())
     finally:
