@@ -65,7 +65,12 @@ def _tensor_fingerprint(module: nn.Module) -> tuple[int, ...]:
 
 
 def _capture_cuda(fn: Callable[..., torch.Tensor], inputs: tuple[torch.Tensor | None, ...], memory: GraphMemory):
-    """Warm ``fn`` up on a side stream and capture it into the shared pool, all on the inputs' device."""
+    """Warm ``fn`` up on a side stream and capture it into the shared pool, all on the inputs' device.
+
+    The streams are made here, under the device guard: ``torch.cuda.graph``'s default capture stream is
+    created once per process on whatever device was current then. ``thread_local`` capture: other threads
+    (a server's, a data loader's) may go on using CUDA while this one captures.
+    """
     device = next(t.device for t in inputs if t is not None)
     with torch.cuda.device(device):
         if memory.pool is None:
@@ -77,7 +82,8 @@ def _capture_cuda(fn: Callable[..., torch.Tensor], inputs: tuple[torch.Tensor | 
                 fn(*inputs)
         torch.cuda.current_stream(device).wait_stream(side)
         graph = torch.cuda.CUDAGraph()
-        with torch.cuda.graph(graph, pool=memory.pool):
+        capture_stream = torch.cuda.Stream(device)
+        with torch.cuda.graph(graph, pool=memory.pool, stream=capture_stream, capture_error_mode="thread_local"):
             output = fn(*inputs)
     return graph, output
 
