@@ -48,8 +48,9 @@ MAX_CRASHES_PER_SEED = 3
 DEFAULT_STEP_TIMEOUT = 300.0
 #: Seconds a worker may take to build its environment and say it is ready.
 STARTUP_TIMEOUT = 300.0
-#: Seconds close() waits for all workers together to stop by themselves before terminating them.
-SHUTDOWN_GRACE = 5.0
+#: Seconds close() waits for all workers together to stop by themselves before terminating them (a healthy
+#: one stops in about 0.1 s).
+SHUTDOWN_GRACE = 3.0
 #: The longest the main process blocks in one wait: a Ctrl-C that lands just before a blocking call
 #: is only seen when the call returns, so no wait is left unbounded.
 POLL_SECONDS = 1.0
