@@ -207,8 +207,7 @@ def test_a_dropped_module_is_freed_without_the_cycle_collector(fake_capture) -> 
 
 
 TINY = {"width": 0.125, "crop_size": 32, "n_rotations": 4}
-# two_stream's variants take ~40 s each on 2 cores (a random CLIP per agent, oneDNN set-up per shape).
-AGENTS = ["transporter_only", pytest.param("two_stream", marks=pytest.mark.slow)]
+AGENTS = ["transporter_only", "two_stream"]
 
 
 @pytest.mark.parametrize("name", AGENTS)
