@@ -124,10 +124,11 @@ class GraphedForward:
 
     The result is a fresh tensor (the graph's output is cloned under the lock), so calls from several
     threads are safe. Graphs are dropped and recaptured when the owner's parameters or buffers are
-    re-allocated or replaced (their addresses are checked at every call); :meth:`clear` drops them by
+    re-allocated or replaced (checked at every call, see ``_registrations``); :meth:`clear` drops them by
     hand. Calls under ``torch.inference_mode`` are captured outside it, so later calls work either way.
-    If a capture fails, one warning is logged and every later call of this memory runs eagerly (unpadded)
-    until :meth:`clear`.
+    If a capture fails, one warning is logged and every later call sharing this memory runs eagerly
+    (unpadded) until :meth:`GraphMemory.reset` (an agent resets it at every ``.to()`` and
+    ``optimize_for_device``).
     """
 
     def __init__(
