@@ -59,17 +59,20 @@ class HeightAgent:
 
 def _same_whatever_the_workers(make_agent_fn, n_episodes):
     runs = {}
-    for workers in (1, 2):
+    # One worker in this process (no step timeout), one worker process, two worker processes.
+    for label, workers, timeout in [("here", 1, None), (1, 1, 300.0), (2, 2, 300.0)]:
         agent = make_agent_fn()
-        result = evaluate(agent, TASK, "val", n_episodes, camera_scale=0.5, progress=False, workers=workers)
-        runs[workers] = (result, agent)
+        result = evaluate(
+            agent, TASK, "val", n_episodes, camera_scale=0.5, progress=False, workers=workers, step_timeout=timeout
+        )
+        runs[label] = (result, agent)
     (one, agent1), (two, agent2) = runs[1], runs[2]
     assert [e["seed"] for e in one["episodes"]] == [1 + 2 * i for i in range(n_episodes)]
-    assert one["episodes"] == two["episodes"]
+    assert one["episodes"] == two["episodes"] == runs["here"][0]["episodes"]
     assert {k: v for k, v in one.items() if k != "workers"} == {k: v for k, v in two.items() if k != "workers"}
-    assert one["workers"] == 1 and two["workers"] == 2
+    assert one["workers"] == 1 and two["workers"] == 2 and one["renderer"] == runs["here"][0]["renderer"]
     # Every observation the agent saw, and what it did, is the same (pixels are identical across processes).
-    assert sorted(agent1.calls) == sorted(agent2.calls)
+    assert sorted(agent1.calls) == sorted(agent2.calls) == sorted(runs["here"][1].calls)
     assert len(agent1.calls) == sum(e["actions"] for e in one["episodes"])
     return one
 
