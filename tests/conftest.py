@@ -114,7 +114,7 @@ def _synthetic_dataset(root: str, n_episodes: int = 3) -> str:
     return folder
 
 
-@pytest.fixture
+@pytest.fixture(scope="session")
 def make_synthetic_dataset():
     """A function (root, n_episodes) writing place-red-in-green episodes with markers at the action pixels."""
     return _synthetic_dataset

@@ -17,10 +17,11 @@ from cliport import __version__
 from cliport.agents.config import AgentConfig
 from cliport.env.heightmap import BOUNDS, PIXEL_SIZE, pix_to_xyz
 from cliport.env.transforms import yaw_to_quat
-from cliport.models.cuda_graphs import GraphedForward
+from cliport.models.cuda_graphs import GraphedForward, GraphMemory
 from cliport.models.encoders import FrozenEncoder
 from cliport.models.heads import PickHead, PlaceHead
 from cliport.models.preprocess import raw_input
+from cliport.utils.device import bf16_native
 from cliport.utils.files import save_torch
 
 #: 2 since the networks compute the reference CLIPort's functions (cliport 0.2.0); 1 before.
@@ -78,8 +79,10 @@ class PickPlaceAgent(nn.Module):
         self.encoder = encoder
         # Per-device speed settings, see optimize_for_device(); each applies on CUDA only.
         self.device_options = dict.fromkeys(DEVICE_OPTIONS, True)
-        self._pick_graphs = GraphedForward(self._pick_forward)
-        self._place_graphs = GraphedForward(self._place_forward)
+        # One memory pool and one lock for both forwards' graphs; they hold this agent weakly.
+        self._graph_memory = GraphMemory()
+        self._pick_graphs = GraphedForward(self._pick_forward, self._graph_memory)
+        self._place_graphs = GraphedForward(self._place_forward, self._graph_memory)
 
     @property
     def device(self) -> torch.device:
@@ -96,11 +99,14 @@ class PickPlaceAgent(nn.Module):
 
         On CUDA: ``channels_last`` keeps the nets' weights and inputs (raw input, padded key input, query
         crops) in channels_last, so cuDNN never converts layouts; ``bf16_clip`` runs the frozen encoder's image
-        trunk in bfloat16 (its features are returned as float32; the text encoder stays float32);
-        ``fused_adam`` makes :meth:`make_optimizer` use the fused Adam kernel; ``act_graphs`` replays the
-        pick and place forwards of :meth:`act_batch` as CUDA graphs, one per batch size and image size.
-        On the CPU all four are off whatever is asked: NCHW float32, foreach Adam, eager acting.
-        Returns the agent.
+        trunk in bfloat16 (its features are returned as float32; the text encoder stays float32) on GPUs
+        that compute bf16 natively (compute capability 8.0+; elsewhere it stays float32), and its float32
+        weights come back when the setting is switched off or the agent leaves CUDA; ``fused_adam`` makes
+        :meth:`make_optimizer` use the fused Adam kernel; ``act_graphs`` replays the pick and place
+        forwards of :meth:`act_batch` as CUDA graphs (see :class:`~cliport.models.cuda_graphs.GraphedForward`:
+        batches padded to 1, 2, 4 or 8, one memory pool). On the CPU all four are off whatever is asked:
+        NCHW float32, foreach Adam, eager acting. :meth:`active_device_options` says which apply. Returns
+        the agent.
         """
         self.device_options.update(
             channels_last=channels_last, bf16_clip=bf16_clip, fused_adam=fused_adam, act_graphs=act_graphs
@@ -114,11 +120,18 @@ class PickPlaceAgent(nn.Module):
         self.device_options["act_graphs"] = enabled
 
     def _use(self, option: str) -> bool:
-        return self.device_options[option] and self.device.type == "cuda"
+        if not (self.device_options[option] and self.device.type == "cuda"):
+            return False
+        return option != "bf16_clip" or bf16_native(self.device)
+
+    def active_device_options(self) -> dict[str, bool]:
+        """The speed settings in effect on the agent's device now (what was asked for, where it applies)."""
+        return {option: self._use(option) for option in DEVICE_OPTIONS}
 
     def _apply_device_options(self) -> None:
         self._pick_graphs.clear()
         self._place_graphs.clear()
+        self._graph_memory.reset()
         layout = torch.channels_last if self._use("channels_last") else torch.contiguous_format
         for head in (self.pick, self.place):
             head.to(memory_format=layout)

@@ -1,6 +1,6 @@
 """cliport-convert: a checkpoint of the reference CLIPort code as a cliport run folder.
 
-See :mod:`cliport.deploy.convert` and the README ("Coming from the reference CLIPort").
+See :mod:`cliport.train.convert` and the README ("Coming from the reference CLIPort").
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from cliport.cli.common import OneLineParser, run_cli
 
 
 def _parser() -> argparse.ArgumentParser:
-    from cliport.deploy.convert import REFERENCE_N_ROTATIONS, SUPPORTED
+    from cliport.train.convert import REFERENCE_N_ROTATIONS, SUPPORTED
 
     parser = OneLineParser(
         prog="cliport-convert",
@@ -49,8 +49,8 @@ def _parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> None:
     args = _parser().parse_args(argv)
-    from cliport.deploy.convert import convert_checkpoint
     from cliport.errors import ConfigError
+    from cliport.train.convert import convert_checkpoint
 
     if args.n_rotations < 1:
         raise ConfigError(f"--n-rotations must be >= 1, got {args.n_rotations}")

@@ -49,13 +49,13 @@ def main(argv: list[str] | None = None) -> None:
     from cliport.agents import load_agent
     from cliport.data.seeds import episode_seeds
     from cliport.deploy.hub import HF_PREFIX, hub_eval_dir, resolve_run_dir
-    from cliport.env.environment import EnvConfig
+    from cliport.env.environment import RENDERER_KINDS, EnvConfig
     from cliport.evaluation.engine import EvalEngine, resolve_workers
     from cliport.evaluation.evaluate import EvalConfig, evaluate
     from cliport.train.trainer import load_run_config
     from cliport.utils.config import given_flags, load
     from cliport.utils.device import resolve_device
-    from cliport.utils.files import write_json
+    from cliport.utils.files import read_json, write_json
     from cliport.utils.run_dir import RunDir
 
     config = load(EvalConfig, "eval", given_flags(args, dests))
@@ -76,12 +76,16 @@ def main(argv: list[str] | None = None) -> None:
             f"{run_config.env.camera_scale}",
             file=sys.stderr,
         )
+    renderer = config.renderer or run_config.env.renderer
+    if renderer not in ("auto", "egl", "cpu"):
+        raise ConfigError(f"--renderer must be auto, egl or cpu, got {renderer!r}")
+    validated_with = read_json(run.val).get("renderer") if os.path.exists(run.val) else None
     names = tasks.resolve(args.task or run_config.task)
     out = args.out or (hub_eval_dir(source) if source.startswith(HF_PREFIX) else run.eval_dir)
     device = resolve_device(config.device)
     weights = weight_overrides(args)
     engines: dict[str, EvalEngine] = {}  # one per task, its workers kept across checkpoints (--checkpoint all)
-    env_config = EnvConfig.defaults(camera_scale=camera_scale)
+    env_config = EnvConfig.defaults(camera_scale=camera_scale, renderer=renderer)
     with contextlib.ExitStack() as stack:
         for which in checkpoints_to_run(args.run_dir, config.checkpoint):
             path = run.checkpoint(which)
@@ -112,6 +116,14 @@ def main(argv: list[str] | None = None) -> None:
                     video_fps=config.video_fps,
                     engine=engines[name],
                 )
+                if validated_with in RENDERER_KINDS and result["renderer"] != validated_with:
+                    flag = "cpu" if validated_with == "tiny" else "egl"
+                    print(
+                        f"note: rendered with {result['renderer']}; the run was validated with {validated_with} "
+                        f"(their pixels differ; --renderer {flag} renders as validation did)",
+                        file=sys.stderr,
+                    )
+                    validated_with = None  # said once
                 result.update(checkpoint=which, checkpoint_file=path, **agent.describe(), run_dir=source)
                 write_json(os.path.join(out, f"{name}-{config.mode}-{which}.json"), result)
                 summary = {k: v for k, v in result.items() if k != "episodes"}

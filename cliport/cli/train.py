@@ -119,6 +119,7 @@ def main(argv: list[str] | None = None) -> None:
             camera_scale=config.env.camera_scale,
             progress=not args.no_progress,
             workers=workers,
+            renderer=config.env.renderer,
         )
     summary = train(config, resume=args.resume, progress=not args.no_progress, validator=validator)
     if summary.pop("rank", 0) == 0:

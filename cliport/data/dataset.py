@@ -96,10 +96,18 @@ class DemoDataset(Dataset):
 
     def recorded_camera_scales(self) -> dict[str, float | None]:
         """Per task, the camera_scale its first episode file records (None for files that predate it)."""
-        out: dict[str, float | None] = {}
+        return self._recorded("camera_scale")
+
+    def recorded_renderers(self) -> dict[str, str | None]:
+        """Per task, the renderer ("egl" or "tiny") its first episode file records (None for files that
+        predate the record, and for imported real demonstrations)."""
+        return self._recorded("renderer")
+
+    def _recorded(self, key: str) -> dict[str, Any]:
+        out: dict[str, Any] = {}
         for task, path in self.files:
             if task not in out:
-                out[task] = read_meta(path).get("camera_scale")
+                out[task] = read_meta(path).get(key)
         return out
 
     def _generator(self) -> np.random.Generator:

@@ -91,9 +91,11 @@ def _worker_run(seed: int, path: str, meta: dict[str, Any], raw_images: bool) ->
         "success": episode.success,
         "total_reward": episode.total_reward,
         "steps": episode.n_actions,
+        "renderer": _ENV.renderer_kind,
     }
     if episode.success:
         meta = {**meta, "seed": seed, "total_reward": episode.total_reward, "n_steps": episode.n_actions}
+        meta["renderer"] = _ENV.renderer_kind  # what rendered these pixels ("egl" or "tiny")
         result["bytes"] = save_episode(path, episode.steps, meta, raw_images=raw_images)
     return result
 
@@ -177,8 +179,11 @@ def generate(
             return seed
         return None
 
+    renderers: set[str] = set()  # what this run's episodes were rendered with
+
     def record(result: dict[str, Any]) -> None:
         nonlocal n_saved, n_bytes, n_steps, n_regenerated
+        renderers.add(result["renderer"])
         if result["success"]:
             n_saved += 1
             if result["seed"] in removed_bad:
@@ -221,7 +226,9 @@ def generate(
                         pending.add(pool.submit(_worker_run, seed, episode_path(folder, seed), meta, config.raw_images))
                     if not pending:
                         break
-                    finished, pending = cf.wait(pending, return_when=cf.FIRST_COMPLETED)
+                    # Bounded: a Ctrl-C landing just before an unbounded wait would only be seen when a
+                    # demo finishes (up to a minute for the pile tasks).
+                    finished, pending = cf.wait(pending, timeout=1.0, return_when=cf.FIRST_COMPLETED)
                     for future in finished:
                         record(future.result())
     finally:
@@ -248,6 +255,7 @@ def generate(
         "mb_per_step": round(n_bytes / n_steps / 1e6, 4) if n_steps else None,
         "workers": config.workers,
         "camera_scale": config.camera_scale,
+        "renderer": ",".join(sorted(renderers)) or None,
         "cliport_version": __version__,
     }
     write_json(os.path.join(folder, f"summary{suffix}.json"), summary)

@@ -31,10 +31,16 @@ def quiet_native_output() -> Iterator[None]:
         os.dup2(devnull, 2)
         yield
     finally:
-        os.dup2(saved[0], 1)
-        os.dup2(saved[1], 2)
-        for fd in (*saved, devnull):
-            os.close(fd)
+        # One restore per finally: a Ctrl-C (KeyboardInterrupt) raised right after the first must not leave
+        # stderr on /dev/null, where its traceback and everything after it would vanish.
+        try:
+            os.dup2(saved[0], 1)
+        finally:
+            try:
+                os.dup2(saved[1], 2)
+            finally:
+                for fd in (*saved, devnull):
+                    os.close(fd)
 
 
 def _import_pybullet() -> ModuleType:

@@ -76,6 +76,24 @@ def _gpu_present() -> bool:
     return os.path.exists("/dev/nvidia0")
 
 
+#: What demos, evaluations and runs record as the renderer: PyBullet's EGL plugin or TinyRenderer.
+RENDERER_KINDS = ("egl", "tiny")
+
+
+def expected_renderer(choice: str) -> str:
+    """The renderer kind ("egl" or "tiny") an Environment with the ``renderer`` setting ``choice`` uses on
+    this machine, found without starting one: "auto" is egl where an NVIDIA GPU (``/dev/nvidia0``) and
+    PyBullet's eglRenderer plugin are present. (An Environment falls back to tiny if the plugin is present
+    but fails to load; its :attr:`Environment.renderer_kind` is what it really uses.)"""
+    if choice not in ("auto", "egl", "cpu"):
+        raise ValueError(f"renderer must be 'auto', 'egl' or 'cpu', got {choice!r}")
+    if choice == "cpu" or (choice == "auto" and not _gpu_present()):
+        return "tiny"
+    if choice == "egl":
+        return "egl"
+    return "egl" if importlib.util.find_spec("eglRenderer") is not None else "tiny"
+
+
 class Environment:
     """PyBullet workcell with a UR5, three RGB-D cameras and an optional task.
 
@@ -95,6 +113,8 @@ class Environment:
         self.client = p.connect(p.DIRECT)
         self.asset_dir = assets.new_asset_dir()
         self.renderer, self.renderer_name = self._choose_renderer(self.config.renderer)
+        #: "egl" or "tiny": recorded in demos and evaluation results (their pixels differ, see the README).
+        self.renderer_kind = "egl" if self.renderer == p.ER_BULLET_HARDWARE_OPENGL else "tiny"
         log.info("rendering with %s", self.renderer_name)
         self.camera_configs = [c.scaled(self.config.camera_scale) for c in cameras.realsense_d415()]
         self.task = task
@@ -351,4 +371,4 @@ def validate_action(action: Any, bounds: np.ndarray, margin: float = 0.01) -> tu
     return poses[0], poses[1]
 
 
-__all__ = ["ActionError", "EnvConfig", "Environment", "Task", "validate_action"]
+__all__ = ["RENDERER_KINDS", "ActionError", "EnvConfig", "Environment", "Task", "expected_renderer", "validate_action"]

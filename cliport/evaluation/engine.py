@@ -9,9 +9,13 @@ state, so with ``ORACLE`` the workers run whole episodes themselves.
 
 Workers are started with the spawn context and never import torch; they get only picklable settings
 (task name, mode, workcell config) and send back numpy observations, the instruction and per-episode
-results. A worker that dies is reported (with its seed), replaced, and its episode re-run from the
-start. With one worker everything runs in the calling process. Results come back in seed order, and
-the same seeds give the same results whatever the number of workers.
+results. A worker that dies, or that does not answer within the step timeout (a hung simulator), is
+reported with its seed, killed, replaced, and its episode re-run from the start. Closing stops every
+worker within about :data:`SHUTDOWN_GRACE` + 3 seconds in all, whatever state they are in. Only with
+``step_timeout=None`` and one worker does the simulator run in the calling process (nothing could stop
+it there). Results come back in seed order, and on a CPU the same seeds give the same results whatever
+the number of workers (on a GPU see the README: an action can depend on how many observations shared
+its ``act_batch`` call).
 """
 
 from __future__ import annotations
@@ -19,19 +23,17 @@ from __future__ import annotations
 import logging
 import multiprocessing as mp
 import os
-import signal
 import time
-import traceback
 from collections import deque
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
 from multiprocessing.connection import Connection, wait
 from typing import Any
 
 from tqdm import tqdm
 
-from cliport.env.environment import EnvConfig, Environment
+from cliport.env.environment import EnvConfig
 from cliport.errors import ConfigError
+from cliport.evaluation.stepper import CRASH_ENV, HANG_ENV, EpisodeStepper, worker_main
 
 log = logging.getLogger(__name__)
 
@@ -41,9 +43,17 @@ ORACLE = "oracle"
 MAX_DEFAULT_WORKERS = 8
 #: A seed whose worker dies this many times is a bug, not bad luck: the engine stops.
 MAX_CRASHES_PER_SEED = 3
-#: Test hook: "SEED:PATH" makes a worker process die (os._exit) after the first action of SEED (after the
-#: whole episode with the oracle) when PATH does not exist yet; it creates PATH first, so the re-run succeeds.
-CRASH_ENV = "CLIPORT_TEST_WORKER_CRASH"
+#: Seconds a worker may take to answer one message (start an episode, or do one action) before it is
+#: killed as hung; an oracle episode, played whole in the worker, gets this for each action it may take.
+DEFAULT_STEP_TIMEOUT = 300.0
+#: Seconds a worker may take to build its environment and say it is ready.
+STARTUP_TIMEOUT = 300.0
+#: Seconds close() waits for all workers together to stop by themselves before terminating them (a healthy
+#: one stops in about 0.1 s).
+SHUTDOWN_GRACE = 3.0
+#: The longest the main process blocks in one wait: a Ctrl-C that lands just before a blocking call
+#: is only seen when the call returns, so no wait is left unbounded.
+POLL_SECONDS = 1.0
 
 
 class WorkerError(RuntimeError):
@@ -70,166 +80,45 @@ def resolve_workers(workers: int | None, n_episodes: int, flag: str = "--workers
     return workers
 
 
-# ---------------------------------------------------------------------- simulator side
-@dataclass
-class _Episode:
-    seed: int
-    oracle: bool
-    video_path: str | None
-    video_fps: int
-    total_reward: float = 0.0
-    actions: int = 0
-    start: float = field(default_factory=time.perf_counter)
-
-
-class EpisodeStepper:
-    """One environment with the task; plays episodes one message at a time (see :meth:`handle`).
-
-    Messages: ``("start", seed, oracle, video_path, video_fps)`` and ``("action", action)``; replies:
-    ``("act", seed, observation, lang_goal)`` (an action is wanted) or ``("result", row)`` (the episode
-    ended). The loop is :func:`cliport.data.rollout.run_episode`'s, so results match serial runs.
-    """
-
-    def __init__(self, task_name: str, mode: str, env_config: EnvConfig, crash_hook: bool = False) -> None:
-        from cliport import tasks
-
-        self.env = Environment(env_config, task=tasks.make(task_name, mode))
-        self.crash_hook = crash_hook
-        self.episode: _Episode | None = None
-        self.obs: dict[str, Any] | None = None
-        self.lang_goal: str | None = None
-
-    def handle(self, message: tuple[Any, ...]) -> tuple[Any, ...]:
-        if message[0] == "start":
-            return self.start(*message[1:])
-        if message[0] == "action":
-            return self.step(message[1])
-        raise ValueError(f"unknown message {message[0]!r}")
-
-    def start(self, seed: int, oracle: bool, video_path: str | None = None, video_fps: int = 20) -> tuple[Any, ...]:
-        self.episode = _Episode(seed, oracle, video_path, video_fps)
-        if video_path is not None:
-            self.env.start_recording()
-        if oracle:
-            from cliport.data.rollout import oracle_policy, run_episode
-
-            played = run_episode(self.env, seed, oracle_policy(self.env))
-            self.episode.total_reward, self.episode.actions = played.total_reward, played.n_actions
-            self._maybe_crash()
-            return self._finish()
-        self.obs = self.env.reset(seed)
-        self.lang_goal = self.env.lang_goal
-        return self._next()
-
-    def step(self, action: dict[str, Any] | None) -> tuple[Any, ...]:
-        episode = self.episode
-        if episode is None or episode.oracle:
-            raise RuntimeError("no agent episode is waiting for an action")
-        if action is None:
-            return self._finish()
-        self.obs, reward, done, info = self.env.step(action)
-        self.lang_goal = info.get("lang_goal")
-        episode.total_reward += reward
-        episode.actions += 1
-        self._maybe_crash()
-        if done:
-            return self._finish()
-        return self._next()
-
-    def _next(self) -> tuple[Any, ...]:
-        assert self.episode is not None and self.env.task is not None
-        if self.episode.actions >= self.env.task.max_steps:
-            return self._finish()
-        return ("act", self.episode.seed, self.obs, self.lang_goal)
-
-    def _finish(self) -> tuple[Any, ...]:
-        episode = self.episode
-        assert episode is not None
-        row: dict[str, Any] = {
-            "seed": episode.seed,
-            "total_reward": episode.total_reward,
-            "actions": episode.actions,
-            "seconds": time.perf_counter() - episode.start,
-        }
-        if episode.video_path is not None:
-            from cliport.evaluation.visualize import save_video
-
-            save_video(episode.video_path, self.env.stop_recording(), episode.video_fps)
-            row["video"] = episode.video_path
-        self.episode, self.obs = None, None
-        return ("result", row)
-
-    def _maybe_crash(self) -> None:
-        spec = os.environ.get(CRASH_ENV) if self.crash_hook else None
-        if not spec or self.episode is None:
-            return
-        seed, _, path = spec.partition(":")
-        if int(seed) == self.episode.seed and not os.path.exists(path):
-            open(path, "w").close()
-            os._exit(3)
-
-    def close(self) -> None:
-        self.env.close()
-
-
-def _worker_main(conn: Connection, task_name: str, mode: str, env_config: EnvConfig) -> None:
-    """A worker process: build the stepper, say ready, then answer messages until "close" or EOF."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the main process's to handle
-    try:
-        stepper = EpisodeStepper(task_name, mode, env_config, crash_hook=True)
-    except Exception:
-        conn.send(("error", traceback.format_exc()))
-        return
-    conn.send(("ready",))
-    try:
-        while True:
-            try:
-                message = conn.recv()
-            except EOFError:
-                break
-            if message[0] == "close":
-                break
-            try:
-                reply = stepper.handle(message)
-            except Exception:
-                reply = ("error", traceback.format_exc())
-            conn.send(reply)
-    finally:
-        stepper.close()
-
-
 # ---------------------------------------------------------------------- main side
 class _Worker:
-    """A simulator slot: in this process (one-worker mode) or a spawned process."""
+    """A simulator slot: in this process (one worker, no step timeout) or a spawned process."""
 
     def __init__(self, index: int, spec: tuple[str, str, EnvConfig], in_process: bool) -> None:
         self.index = index
         self.seed: int | None = None  # the episode it is playing
         self.ready = in_process
+        self.info: dict[str, Any] = {}  # what it said when ready: renderer, max_steps
+        self.deadline: float | None = None  # monotonic time by which it must answer, while it owes an answer
         self.stepper: EpisodeStepper | None = None
         self.replies: deque[tuple[Any, ...]] = deque()
         self.process: Any = None
         self.conn: Connection | None = None
         if in_process:
             self.stepper = EpisodeStepper(*spec)
+            assert self.stepper.env.task is not None
+            self.info = {"renderer": self.stepper.env.renderer_kind, "max_steps": self.stepper.env.task.max_steps}
         else:
             ctx = mp.get_context("spawn")
             self.conn, child = ctx.Pipe()
-            self.process = ctx.Process(target=_worker_main, args=(child, *spec), daemon=True, name=f"eval-{index}")
+            self.process = ctx.Process(target=worker_main, args=(child, *spec), daemon=True, name=f"eval-{index}")
             self.process.start()
             child.close()
 
-    def send(self, message: tuple[Any, ...]) -> None:
+    def send(self, message: tuple[Any, ...], timeout: float | None = None) -> None:
+        """Send ``message``; ``timeout``: seconds it has to answer (None: no limit)."""
         if self.stepper is not None:
             self.replies.append(self.stepper.handle(message))
-        else:
-            assert self.conn is not None
-            try:
-                self.conn.send(message)
-            except (BrokenPipeError, ConnectionResetError):
-                pass  # it died; its sentinel tells the main loop
+            return
+        assert self.conn is not None
+        self.deadline = None if timeout is None else time.monotonic() + timeout
+        try:
+            self.conn.send(message)
+        except (BrokenPipeError, ConnectionResetError):
+            pass  # it died; its sentinel tells the main loop
 
-    def close(self) -> None:
+    def request_close(self) -> None:
+        """Ask the worker to stop (the first half of a parallel shutdown, see :func:`_close_all`)."""
         if self.stepper is not None:
             self.stepper.close()
             return
@@ -238,11 +127,39 @@ class _Worker:
             self.conn.send(("close",))
         except (BrokenPipeError, ConnectionResetError, OSError):
             pass
-        self.process.join(timeout=10)
-        if self.process.is_alive():
-            self.process.terminate()
+
+    def kill(self) -> None:
+        """Stop the process now (SIGKILL: a hung native call ignores SIGTERM)."""
+        if self.process is not None and self.process.is_alive():
+            self.process.kill()
             self.process.join(timeout=5)
-        self.conn.close()
+
+    def close(self) -> None:
+        _close_all([self])
+
+
+def _close_all(workers: list[_Worker], grace: float | None = None) -> None:
+    """Stop ``workers`` in parallel: ask each to close, wait up to ``grace`` seconds for all of them
+    together, then SIGTERM the rest (2 s more), then SIGKILL what is left: about grace + 3 s at most."""
+    grace = SHUTDOWN_GRACE if grace is None else grace
+    for worker in workers:
+        worker.request_close()
+    remote = [w for w in workers if w.process is not None]
+    for limit, stop in ((grace, None), (2.0, "terminate"), (1.0, "kill")):
+        alive = [w for w in remote if w.process.is_alive()]
+        if not alive:
+            break
+        for worker in alive if stop else ():
+            getattr(worker.process, stop)()
+        end = time.monotonic() + limit
+        for worker in alive:
+            worker.process.join(timeout=max(0.0, end - time.monotonic()))
+    for worker in remote:
+        if worker.process.is_alive():
+            pid = worker.process.pid
+            log.warning("evaluation worker %d (pid %s) did not stop even after SIGKILL", worker.index, pid)
+        assert worker.conn is not None
+        worker.conn.close()
 
 
 Policy = Any  # an agent with act_batch(observations, instructions), or ORACLE
@@ -253,8 +170,10 @@ class EvalEngine:
 
     ``run(policy, seeds)`` returns one row per seed, in seed order: ``seed``, ``total_reward``, ``actions``,
     ``seconds`` (and ``video`` when recorded). :attr:`last_timing` holds the start-up time of the workers
-    and the time from the first episode's start to the last one's end. Use as a context manager (or call
-    :meth:`close`) so the workers stop.
+    and the time from the first episode's start to the last one's end; :attr:`renderer` the renderer the
+    simulators use ("egl" or "tiny"). ``step_timeout``: seconds a worker may take per episode start or
+    action before it is killed as hung and its episode re-run (None: no limit, and with one worker the
+    simulator runs in this process). Use as a context manager (or call :meth:`close`) so the workers stop.
     """
 
     def __init__(
@@ -265,17 +184,22 @@ class EvalEngine:
         workers: int = 1,
         progress: bool = True,
         desc: str | None = None,
+        step_timeout: float | None = DEFAULT_STEP_TIMEOUT,
     ) -> None:
         if workers < 1:
             raise ConfigError(f"workers must be >= 1, got {workers}")
+        if step_timeout is not None and step_timeout <= 0:
+            raise ConfigError(f"step_timeout must be > 0 seconds, got {step_timeout}")
         self.task_name, self.mode = task_name, mode
         self.env_config = env_config or EnvConfig.defaults()
         self.n_workers = workers
         self.progress = progress
         self.desc = desc or f"eval {task_name}-{mode}"
+        self.step_timeout = step_timeout
         self.workers: list[_Worker] = []
         self.startup_seconds = 0.0
         self.last_timing: dict[str, float] = {}
+        self.renderer: str | None = None
         self._spawned = 0
 
     # -------------------------------------------------------------- workers
@@ -284,7 +208,8 @@ class EvalEngine:
 
     def _new_worker(self) -> _Worker:
         self._spawned += 1
-        return _Worker(self._spawned - 1, self._spec(), in_process=self.n_workers == 1)
+        in_process = self.n_workers == 1 and self.step_timeout is None
+        return _Worker(self._spawned - 1, self._spec(), in_process=in_process)
 
     def start(self) -> None:
         """Start the workers (if not yet) and wait until each has its environment."""
@@ -292,17 +217,36 @@ class EvalEngine:
             return
         begin = time.perf_counter()
         self.workers = [self._new_worker() for _ in range(self.n_workers)]
-        while not all(w.ready for w in self.workers):
-            for worker, message in self._receive([w for w in self.workers if not w.ready]):
-                if message[0] != "ready":
-                    raise WorkerError(f"worker {worker.index} could not start: {message}")
+        for worker in self.workers:
+            if not worker.ready:
+                worker.deadline = time.monotonic() + STARTUP_TIMEOUT
+        try:
+            while not all(w.ready for w in self.workers):
+                for worker, message in self._receive([w for w in self.workers if not w.ready]):
+                    if message[0] == "hung":
+                        raise WorkerError(f"worker {worker.index} did not start within {STARTUP_TIMEOUT:.0f} s")
+                    if message[0] != "ready":
+                        raise WorkerError(f"worker {worker.index} could not start: {message}")
+                    self._note_ready(worker)
+        except BaseException:
+            self.close()
+            raise
         self.startup_seconds = time.perf_counter() - begin
+        for worker in self.workers:
+            self._note_ready(worker)
+
+    def _note_ready(self, worker: _Worker) -> None:
+        renderer = worker.info.get("renderer")
+        if self.renderer is None:
+            self.renderer = renderer
+        elif renderer != self.renderer:
+            others = self.renderer
+            log.warning("evaluation worker %d renders with %s, the others with %s", worker.index, renderer, others)
 
     def close(self) -> None:
-        """Stop every worker."""
+        """Stop every worker (in parallel; within about SHUTDOWN_GRACE + 3 seconds)."""
         workers, self.workers = self.workers, []
-        for worker in workers:
-            worker.close()
+        _close_all(workers)
 
     def __enter__(self) -> EvalEngine:
         return self
@@ -311,7 +255,8 @@ class EvalEngine:
         self.close()
 
     def _receive(self, workers: list[_Worker]) -> list[tuple[_Worker, tuple[Any, ...]]]:
-        """Wait for messages from ``workers``; a dead worker yields ``("died", exitcode)``."""
+        """Wait (at most POLL_SECONDS) for messages from ``workers``; a dead worker yields ``("died", exitcode)``
+        and one past its deadline is killed and yields ``("hung", seconds waited)``. Possibly empty."""
         local = [(w, w.replies.popleft()) for w in workers if w.stepper is not None and w.replies]
         if local or all(w.stepper is not None for w in workers):
             return local
@@ -320,9 +265,11 @@ class EvalEngine:
         for w in remote:
             by_object[w.conn] = w
             by_object[w.process.sentinel] = w
+        deadlines = [w.deadline for w in remote if w.deadline is not None]
+        timeout = POLL_SECONDS if not deadlines else min(POLL_SECONDS, max(0.0, min(deadlines) - time.monotonic()))
         out: list[tuple[_Worker, tuple[Any, ...]]] = []
         seen: set[int] = set()
-        for obj in wait(list(by_object)):
+        for obj in wait(list(by_object), timeout=timeout):
             worker = by_object[obj]
             if worker.index in seen:
                 continue
@@ -331,8 +278,10 @@ class EvalEngine:
             try:
                 while worker.conn.poll():
                     message = worker.conn.recv()
+                    worker.deadline = None
                     if message[0] == "ready":
                         worker.ready = True
+                        worker.info = message[1]
                     out.append((worker, message))
                     if message[0] in ("result", "error"):
                         break
@@ -343,7 +292,17 @@ class EvalEngine:
             except (EOFError, OSError):
                 worker.process.join(timeout=5)
                 out.append((worker, ("died", worker.process.exitcode)))
+        now = time.monotonic()
+        for worker in remote:
+            if worker.index not in seen and worker.deadline is not None and now > worker.deadline:
+                worker.kill()
+                out.append((worker, ("hung", None)))
         return out
+
+    def _timeout(self, oracle: bool, worker: _Worker) -> float | None:
+        if self.step_timeout is None:
+            return None
+        return self.step_timeout * (worker.info.get("max_steps", 1) if oracle else 1)
 
     # -------------------------------------------------------------- episodes
     def run(
@@ -382,7 +341,8 @@ class EvalEngine:
                     if worker.ready and worker.seed is None and todo:
                         worker.seed = todo.popleft()
                         first_start = first_start or time.perf_counter()
-                        worker.send(("start", worker.seed, oracle, video_path(worker.seed), video_fps))
+                        message = ("start", worker.seed, oracle, video_path(worker.seed), video_fps)
+                        worker.send(message, self._timeout(oracle, worker))
                 busy = [w for w in self.workers if w.seed is not None or not w.ready]
                 waiting: list[tuple[_Worker, int, dict[str, Any], str | None]] = []
                 for worker, message in self._receive(busy):
@@ -397,15 +357,17 @@ class EvalEngine:
                         bar.update(1)
                         if on_result is not None:
                             on_result(row)
-                    elif kind == "died":
-                        self._replace(worker, message[1], todo, crashes)
+                    elif kind == "ready":
+                        self._note_ready(worker)
+                    elif kind in ("died", "hung"):
+                        self._replace(worker, kind, message[1], todo, crashes, oracle)
                         waiting = [w for w in waiting if w[0] is not worker]
                     elif kind == "error":
                         raise WorkerError(f"worker {worker.index} failed on seed {worker.seed}:\n{message[1]}")
                 if waiting:
                     actions = policy.act_batch([w[2] for w in waiting], [w[3] for w in waiting])
                     for (worker, _, _, _), action in zip(waiting, actions, strict=True):
-                        worker.send(("action", _executable(action)))
+                        worker.send(("action", _executable(action)), self._timeout(False, worker))
         except BaseException:
             self.close()  # a worker may be mid-episode: start afresh next time
             raise
@@ -417,23 +379,38 @@ class EvalEngine:
         }
         return [results[s] for s in seeds]
 
-    def _replace(self, worker: _Worker, exitcode: int | None, todo: deque[int], crashes: dict[int, int]) -> None:
-        """Report a dead worker, start another in its place and put its episode back in front of the queue."""
+    def _replace(
+        self,
+        worker: _Worker,
+        kind: str,
+        exitcode: int | None,
+        todo: deque[int],
+        crashes: dict[int, int],
+        oracle: bool,
+    ) -> None:
+        """Report a dead or hung worker, start another in its place and put its episode back in front of the
+        queue."""
         seed = worker.seed
         position = self.workers.index(worker)
+        worker.kill()
         worker.close()
+        what = "died" if kind == "died" else "hung"
         if seed is None:
-            raise WorkerError(f"an evaluation worker of {self.task_name} died while starting (exit code {exitcode})")
+            raise WorkerError(f"an evaluation worker of {self.task_name} {what} while starting (exit code {exitcode})")
         crashes[seed] = crashes.get(seed, 0) + 1
         if crashes[seed] >= MAX_CRASHES_PER_SEED:
-            raise WorkerError(f"the simulator died {crashes[seed]} times on seed {seed} of {self.task_name}")
+            raise WorkerError(f"the simulator {what} {crashes[seed]} times on seed {seed} of {self.task_name}")
+        if kind == "died":
+            reason = f"died (exit code {exitcode})"
+        else:
+            reason = f"did not answer within {self._timeout(oracle, worker):.0f} s (hung) and was killed"
         log.warning(
-            "evaluation worker %d died (exit code %s) during seed %d of %s-%s; re-running the seed from the "
-            "start in a new worker",
-            worker.index, exitcode, seed, self.task_name, self.mode,
+            "evaluation worker %d %s during seed %d of %s-%s; re-running the seed from the start in a new worker",
+            worker.index, reason, seed, self.task_name, self.mode,
         )  # fmt: skip
         todo.appendleft(seed)
         self.workers[position] = self._new_worker()
+        self.workers[position].deadline = time.monotonic() + STARTUP_TIMEOUT
 
 
 def _executable(action: dict[str, Any] | None) -> dict[str, Any] | None:
@@ -441,3 +418,17 @@ def _executable(action: dict[str, Any] | None) -> dict[str, Any] | None:
     if action is None:
         return None
     return {"pose0": action["pose0"], "pose1": action["pose1"]}
+
+
+__all__ = [
+    "CRASH_ENV",
+    "DEFAULT_STEP_TIMEOUT",
+    "HANG_ENV",
+    "MAX_CRASHES_PER_SEED",
+    "ORACLE",
+    "EpisodeStepper",
+    "EvalEngine",
+    "WorkerError",
+    "resolve_workers",
+    "usable_cores",
+]

@@ -9,7 +9,7 @@ from typing import Any
 
 from cliport.data.seeds import episode_seeds
 from cliport.env.environment import EnvConfig
-from cliport.evaluation.engine import EvalEngine, resolve_workers
+from cliport.evaluation.engine import DEFAULT_STEP_TIMEOUT, EvalEngine, resolve_workers
 
 
 @dataclass
@@ -25,6 +25,8 @@ class EvalConfig:
         video_fps: frames per second of the --video GIFs.
         workers: simulator processes stepping episodes in parallel (the agent acts on all of them in one
             batch in the main process); unset = the usable CPU cores, at most 8 and at most n_episodes.
+        renderer: auto, egl or cpu (TinyRenderer); unset = the run's setting. Its pixels differ from the
+            other renderer's, so evaluate with the renderer the run's demos and validation used.
     """
 
     mode: str
@@ -34,6 +36,7 @@ class EvalConfig:
     video_fps: int
     camera_scale: float | None = None
     workers: int | None = None
+    renderer: str | None = None
 
 
 def confidence_interval(scores: list[float]) -> tuple[float, float]:
@@ -104,20 +107,26 @@ def evaluate(
     video_fps: int = 20,
     workers: int | None = None,
     engine: EvalEngine | None = None,
+    renderer: str = "auto",
+    step_timeout: float | None = DEFAULT_STEP_TIMEOUT,
 ) -> dict[str, Any]:
-    """Episodes on the first ``n_episodes`` seeds of ``mode``; returns per-episode and summary scores.
+    """Episodes on the first ``n_episodes`` seeds of ``mode``; returns per-episode and summary scores, the
+    worker count and the renderer the episodes used ("egl" or "tiny").
 
     The episodes run in ``workers`` simulator processes (None: one per usable core, see
-    :func:`~cliport.evaluation.engine.resolve_workers`) with ``agent.act_batch`` in this process, or in
-    ``engine`` when given (its task, mode and workcell are then used and ``camera_scale``/``workers`` ignored).
+    :func:`~cliport.evaluation.engine.resolve_workers`) rendering with ``renderer`` (the workcell setting) and
+    killed as hung after ``step_timeout`` seconds without an answer, with ``agent.act_batch`` in this process,
+    or in ``engine`` when given (its task, mode, workcell and timeout are then used, and ``camera_scale``,
+    ``workers``, ``renderer`` and ``step_timeout`` ignored).
     """
     seeds = episode_seeds(mode, n_episodes)
     if engine is not None:
         rows = engine.run(agent, seeds, video_dir, video_fps)
-        n_workers = engine.n_workers
+        n_workers, used = engine.n_workers, engine.renderer
     else:
         n_workers = resolve_workers(workers, n_episodes)
-        config = EnvConfig.defaults(camera_scale=camera_scale)
-        with EvalEngine(task_name, mode, config, n_workers, progress) as own:
+        config = EnvConfig.defaults(camera_scale=camera_scale, renderer=renderer)
+        with EvalEngine(task_name, mode, config, n_workers, progress, step_timeout=step_timeout) as own:
             rows = own.run(agent, seeds, video_dir, video_fps)
-    return {**summarise(task_name, mode, rows), "workers": n_workers}
+            used = own.renderer
+    return {**summarise(task_name, mode, rows), "workers": n_workers, "renderer": used}

@@ -1,8 +1,8 @@
 """Validation by task success: every scheduled checkpoint of a run on the val episodes, best one recorded.
 
 ``RUN/val.json`` is rewritten atomically after each checkpoint, so an interrupted validation keeps what
-it finished and a re-run does only the missing checkpoints. :class:`SimulatorValidator` is what
-``cliport-train`` and the study hand to the trainer.
+it finished and a re-run does only the missing checkpoints; it records the renderer the episodes used.
+:class:`SimulatorValidator` is what ``cliport-train`` and the study hand to the trainer.
 """
 
 from __future__ import annotations
@@ -12,13 +12,14 @@ import contextlib
 import logging
 import multiprocessing as mp
 import os
+import time
 from dataclasses import dataclass, fields
 from typing import Any
 
 import torch
 
 from cliport.env.environment import EnvConfig
-from cliport.evaluation.engine import EvalEngine, resolve_workers
+from cliport.evaluation.engine import DEFAULT_STEP_TIMEOUT, POLL_SECONDS, EvalEngine, resolve_workers
 from cliport.evaluation.evaluate import evaluate
 from cliport.utils.files import read_json, write_json
 from cliport.utils.run_dir import RunDir
@@ -35,10 +36,14 @@ def validate_run(
     weights: dict[str, str] | None = None,
     progress: bool = True,
     workers: int | None = None,
+    renderer: str = "auto",
+    step_timeout: float | None = DEFAULT_STEP_TIMEOUT,
 ) -> dict[str, Any]:
     """Evaluate every saved checkpoint of ``run_dir`` not yet in its val.json on ``n_episodes`` val
     episodes of each task of ``task`` (a task or group) in ``workers`` simulators (None: one per usable
-    core, see :func:`~cliport.evaluation.engine.resolve_workers`); returns the val.json content."""
+    core, see :func:`~cliport.evaluation.engine.resolve_workers`) rendering with ``renderer`` (the workcell
+    setting); returns the val.json content. One agent at a time: each is dropped (and, on CUDA, its cached
+    memory given back) before the next checkpoint is loaded."""
     from cliport import tasks
     from cliport.agents import load_agent
 
@@ -58,15 +63,21 @@ def validate_run(
         # rather than keeping workers x tasks processes alive.
         engines = {}
         if len(names) == 1:
-            engine = EvalEngine(names[0], "val", EnvConfig.defaults(camera_scale=camera_scale), n_workers, progress)
+            config = EnvConfig.defaults(camera_scale=camera_scale, renderer=renderer)
+            engine = EvalEngine(names[0], "val", config, n_workers, progress, step_timeout=step_timeout)
             engines[names[0]] = stack.enter_context(engine)
         for step in todo:
             agent = load_agent(run.checkpoint(step), device=device, weights=weights)
-            scores = [
+            evaluated = [
                 evaluate(agent, name, "val", n_episodes, camera_scale, progress, workers=n_workers,
-                         engine=engines.get(name))["mean_score"]
+                         engine=engines.get(name), renderer=renderer, step_timeout=step_timeout)
                 for name in names
             ]  # fmt: skip
+            del agent
+            if device.type == "cuda":
+                torch.cuda.empty_cache()  # beside training, the memory is training's again
+            scores = [e["mean_score"] for e in evaluated]
+            _record_renderer(results, evaluated[0]["renderer"], run.val)
             results["checkpoints"][str(step)] = {"mean_score": round(sum(scores) / len(scores), 2), "per_task": scores}
             best = max(results["checkpoints"].items(), key=lambda kv: (kv[1]["mean_score"], -int(kv[0])))
             results["best_step"], results["best_score"] = int(best[0]), best[1]["mean_score"]
@@ -74,6 +85,18 @@ def validate_run(
             score = sum(scores) / len(scores)
             log.info("validation: step %d scored %.2f on %d val episode(s)", step, score, n_episodes)
     return results
+
+
+def _record_renderer(results: dict[str, Any], renderer: str, path: str) -> None:
+    previous = results.get("renderer")
+    if previous is not None and previous != renderer:
+        log.warning(
+            "%s: earlier checkpoints were validated with the %s renderer, these with %s; their scores are not "
+            "comparable (their pixels differ)", path, previous, renderer,
+        )  # fmt: skip
+        results["renderer"] = "mixed"
+    elif previous is None:
+        results["renderer"] = renderer
 
 
 @dataclass
@@ -89,6 +112,8 @@ class SimulatorValidator:
     weights: dict[str, str] | None = None
     progress: bool = True
     workers: int | None = None
+    renderer: str = "auto"
+    step_timeout: float | None = DEFAULT_STEP_TIMEOUT
 
     def checkpoint_saved(self, step: int, path: str) -> None:
         """Nothing to do yet: checkpoints are validated together in :meth:`finish`."""
@@ -134,10 +159,16 @@ class BackgroundValidator(SimulatorValidator):
             return None
         if self._process.is_alive():
             self._steps.put(None)
-            self._process.join(timeout)
+            end = None if timeout is None else time.monotonic() + timeout
+            # Bounded joins: a Ctrl-C that lands just before a blocking join would wait for all of it.
+            while self._process.is_alive() and (end is None or time.monotonic() < end):
+                self._process.join(POLL_SECONDS if end is None else min(POLL_SECONDS, end - time.monotonic()))
             if self._process.is_alive():
                 self._process.terminate()
-                self._process.join()
+                self._process.join(5)
+                if self._process.is_alive():
+                    self._process.kill()
+                    self._process.join()
         code = self._process.exitcode
         self._process = None
         atexit.unregister(self._stop)

@@ -41,6 +41,8 @@ class FrozenEncoder(nn.Module):
     def __init__(self) -> None:
         super().__init__()
         self._sentence_cache: dict[str, torch.Tensor] = {}
+        # The image trunk's float32 weights (on the CPU) while it runs in a lower precision.
+        self._fp32_image_state: dict[str, torch.Tensor] | None = None
 
     def freeze(self) -> None:
         """No gradients and eval mode for every submodule (batch-norm statistics never drift)."""
@@ -60,8 +62,21 @@ class FrozenEncoder(nn.Module):
         raise NotImplementedError
 
     def set_image_dtype(self, dtype: torch.dtype) -> None:
-        """Run the image trunk in ``dtype`` (its features are still returned as float32)."""
-        self.image_module().to(dtype)
+        """Run the image trunk in ``dtype`` (its features are still returned as float32).
+
+        Reversible: leaving float32 keeps a CPU copy of the float32 weights, and coming back to float32
+        restores them exactly (a bfloat16 round trip alone would leave every weight rounded).
+        """
+        module = self.image_module()
+        if dtype != torch.float32:
+            if self._fp32_image_state is None and self.image_dtype() == torch.float32:
+                self._fp32_image_state = {k: v.detach().to("cpu", copy=True) for k, v in module.state_dict().items()}
+            module.to(dtype)
+            return
+        module.to(torch.float32)
+        if self._fp32_image_state is not None:
+            module.load_state_dict(self._fp32_image_state)
+            self._fp32_image_state = None
 
     def instruction_note(self, text: str) -> str | None:
         """A sentence for the user when the encoder cannot read all of ``text`` (e.g. too many tokens);
@@ -139,6 +154,17 @@ class FrozenEncoder(nn.Module):
     def _apply(self, fn, recurse: bool = True):  # type: ignore[no-untyped-def]
         self._sentence_cache.clear()
         return super()._apply(fn, recurse)
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):  # type: ignore[no-untyped-def]
+        # Weights loaded into a bfloat16 trunk also replace the float32 copy it will be restored from.
+        if self._fp32_image_state is not None:
+            module = self.image_module()
+            name = next(n for n, m in self.named_modules() if m is module)
+            for key in self._fp32_image_state:
+                full = f"{prefix}{name}.{key}" if name else f"{prefix}{key}"
+                if full in state_dict:
+                    self._fp32_image_state[key] = state_dict[full].detach().to("cpu", torch.float32, copy=True)
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
 
 class NormStats(nn.Module):

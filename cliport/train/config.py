@@ -29,7 +29,8 @@ class TrainConfig:
         device: auto (CUDA when available), cpu, cuda, cuda:1, ...
         seed: seed of the demo subset, initialisation, sampling and augmentation.
         num_workers: DataLoader worker processes.
-        amp: auto (bf16 autocast on CUDA, none on CPU), bf16 or none.
+        amp: auto (bf16 autocast on GPUs that compute bf16 natively, compute capability 8.0+; else none), bf16
+            or none.
         checkpoint_steps: steps to save checkpoints at (then every checkpoint_every steps).
         checkpoint_every: steps between checkpoints after the listed ones (0: none).
         save_last_every: steps between rolling resume points (checkpoints/last.pt).
@@ -121,6 +122,8 @@ class TrainConfig:
             raise ConfigError(f"amp must be auto, bf16 or none, got {self.amp!r}")
         if self.env.camera_scale <= 0:
             raise ConfigError(f"camera_scale must be > 0, got {self.env.camera_scale}")
+        if self.env.renderer not in ("auto", "egl", "cpu"):
+            raise ConfigError(f"renderer must be auto, egl or cpu, got {self.env.renderer!r}")
         self.agent_config.validate()
 
     def resolved_run_dir(self) -> str:

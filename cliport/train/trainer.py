@@ -22,9 +22,11 @@ from torch.utils.data import DataLoader, RandomSampler
 from tqdm import tqdm
 
 from cliport.agents.base import optimizer_step
+from cliport.env.environment import expected_renderer
 from cliport.errors import RunDirError, UserError
 from cliport.train.config import TrainConfig
-from cliport.utils.device import resolve_device
+from cliport.train.resume import load_optimizer_state
+from cliport.utils.device import bf16_native, resolve_device
 from cliport.utils.files import load_torch, save_torch, write_json
 from cliport.utils.run_dir import RunDir
 
@@ -134,7 +136,8 @@ def _check_start(config: TrainConfig, resume: bool) -> RunDir:
     return run
 
 
-def _check_demo_camera_scale(dataset: Any, config: TrainConfig) -> None:
+def _check_demo_rendering(dataset: Any, config: TrainConfig) -> None:
+    """Validation must render as the demos were rendered: same camera scale, same renderer."""
     if config.val_episodes == 0:
         return
     for task, scale in dataset.recorded_camera_scales().items():
@@ -142,6 +145,14 @@ def _check_demo_camera_scale(dataset: Any, config: TrainConfig) -> None:
             raise TrainError(
                 f"the {task} demos were rendered at camera_scale {scale} but validation would render at "
                 f"{config.env.camera_scale}: pass --camera-scale {scale}"
+            )
+    validation = expected_renderer(config.env.renderer)
+    for task, renderer in dataset.recorded_renderers().items():
+        if renderer is not None and renderer != validation:
+            flag = "cpu" if renderer == "tiny" else "egl"
+            raise TrainError(
+                f"the {task} demos were rendered with {renderer} but validation would render with {validation} "
+                f"(renderer {config.env.renderer!r} on this machine): pass --renderer {flag}"
             )
 
 
@@ -166,7 +177,7 @@ def train(
     dataset = DemoDataset(
         config.data_dir, config.task, "train", config.n_demos, seed=config.seed, rotation_aug=config.rotation_aug
     )
-    _check_demo_camera_scale(dataset, config)
+    _check_demo_rendering(dataset, config)
     optimizer = agent.make_optimizer()
 
     step = 0
@@ -175,7 +186,7 @@ def train(
         if payload["agent"] != config.agent:
             raise TrainError(f"{last_path} is a checkpoint of agent {payload['agent']!r}, not {config.agent!r}")
         agent.load_trainable_state_dict(payload["state_dict"])
-        optimizer.load_state_dict(payload["trainer"]["optimizer"])
+        load_optimizer_state(optimizer, payload["trainer"]["optimizer"])  # into this device's layout and Adam
         step = int(payload["trainer"]["step"])
         torch.set_rng_state(payload["trainer"]["torch_rng"])
     if rank == 0:
@@ -185,7 +196,7 @@ def train(
     model: nn.Module = _LossModule(agent)
     if world > 1:
         model = nn.parallel.DistributedDataParallel(model, device_ids=[local_rank] if device.type == "cuda" else None)
-    use_amp = config.amp == "bf16" or (config.amp == "auto" and device.type == "cuda")
+    use_amp = config.amp == "bf16" or (config.amp == "auto" and bf16_native(device))
     autocast = torch.autocast(device.type, dtype=torch.bfloat16) if use_amp else contextlib.nullcontext()
 
     generator = torch.Generator().manual_seed(config.seed * 7919 + rank + step)

@@ -1,91 +1,392 @@
-"""CUDA speed settings: graphed acting equals eager acting; channels_last, bf16 CLIP and fused Adam are on.
+"""The CUDA path: graphed acting against eager acting on real observations, weights changed after capture,
+bounded and released graph memory, any device, threads, the eager fallback, bf16 against fp32, resume with
+fused Adam, and what holds across batch sizes.
 
-All GPU-only (skipped without CUDA); the CPU side of these settings is tested in test_act_batch.py.
+All GPU-only (skipped without CUDA); their CPU-checkable parts are in tests/models/test_cuda_graphs.py,
+tests/agents/test_device_options.py and tests/train/test_resume.py. Heatmaps are compared with tolerances
+relative to each map's peak: a pick probability of a 320 x 160 map is ~1e-5 and a place one ~1e-6, so an
+absolute tolerance would compare only the argmax. Agents are tiny agents trained a few steps on the
+observations (clear maxima); the observations are the first frames of val episodes of two tasks (different
+instructions per batch entry).
 """
+
+from __future__ import annotations
+
+import functools
+import gc
+import logging
+import os
+import tempfile
+import threading
 
 import numpy as np
 import pytest
 import torch
 
-from cliport.agents import PickPlaceAgent, make_agent
-
-H, W = 320, 160
-CONFIGS = {"transporter_only": {"width": 0.125}, "two_stream": {"width": 0.125, "clip_weights": "random"}}
-INSTRUCTIONS = ["put the red block in the green bowl", "pack the blue block", "stack the blocks"]
+from cliport.agents import PickPlaceAgent, load_agent, make_agent
+from cliport.utils.device import bf16_native
 
 pytestmark = pytest.mark.gpu
 
-
-def _observations(n: int, seed: int) -> list[dict[str, np.ndarray]]:
-    rng = np.random.default_rng(seed)
-    return [
-        {
-            "color": rng.integers(0, 255, (H, W, 3), dtype=np.uint8),
-            "height": rng.uniform(0, 0.05, (H, W)).astype(np.float32),
-        }
-        for _ in range(n)
-    ]
+AGENTS = ["transporter_only", "two_stream"]
+#: Graphed against eager at the same batch size runs the same kernels: only float noise may differ.
+SAME_SHAPE = 1e-4
+#: A different (padded) batch size may choose other kernels, and with the bf16 trunk round differently.
+OTHER_SHAPE = 0.05
+#: An argmax may move only to a pixel this close to the reference map's peak (a near-tie).
+NEAR_TIE = 0.02
 
 
-def _agent(name: str) -> PickPlaceAgent:
+@functools.cache
+def _real_items() -> list[tuple[dict[str, np.ndarray], str]]:
+    from cliport import tasks
+    from cliport.env.environment import EnvConfig, Environment
+
+    out = []
+    for name in ("put-block-in-bowl-seen-colors", "block-insertion"):
+        with Environment(EnvConfig.defaults(camera_scale=0.5, renderer="cpu"), task=tasks.make(name, "val")) as env:
+            for seed in (1, 3, 5, 7):
+                obs = env.reset(seed)
+                out.append(({"color": obs["color"], "height": obs["height"]}, env.lang_goal))
+    return out
+
+
+@pytest.fixture(scope="module")
+def real() -> list[tuple[dict[str, np.ndarray], str]]:
+    """Eight (observation, instruction) pairs: val seeds 1, 3, 5, 7 of two tasks, TinyRenderer, cameras x0.5."""
+    out = _real_items()
+    assert len({lang for _, lang in out[:4]}) > 1  # batch entries carry different instructions
+    return out
+
+
+@functools.cache
+def _trained_checkpoint(name: str) -> str:
+    """A tiny agent trained 40 steps on the real observations (towards picking each scene's highest pixel
+    and placing it back), so that its heatmaps have clear maxima; saved once per test session."""
     torch.manual_seed(0)
-    return make_agent(name, CONFIGS[name]).to("cuda")
+    config = {"width": 0.125, "crop_size": 64, "n_rotations": 36}
+    if name == "two_stream":
+        config["clip_weights"] = "random"
+    agent = make_agent(name, config).to("cuda")
+    items = _real_items()[::2]
+    picks = [np.unravel_index(int(np.argmax(o["height"])), o["height"].shape) for o, _ in items]
+    batch = {
+        "color": torch.from_numpy(np.stack([o["color"] for o, _ in items])),
+        "height": torch.from_numpy(np.stack([o["height"] for o, _ in items])),
+        "pick_pix": torch.tensor(picks),
+        "place_pix": torch.tensor(picks),
+        "place_rot": torch.zeros(len(items), dtype=torch.long),
+        "lang": [lang for _, lang in items],
+    }
+    optimizer = agent.make_optimizer()
+    for _ in range(40):
+        agent.train_step(batch, optimizer)
+    path = os.path.join(tempfile.mkdtemp(prefix="cliport-cuda-test-"), f"{name}.pt")
+    agent.save_checkpoint(path)
+    return path
 
 
-def _assert_same(got: list[dict], expected: list[dict]) -> None:
-    for a, b in zip(got, expected, strict=True):
-        assert a["pick_pix"] == b["pick_pix"] and a["place_pix"] == b["place_pix"]
-        assert a["place_rot"] == b["place_rot"]
-        np.testing.assert_allclose(a["pick_heatmap"], b["pick_heatmap"], rtol=0, atol=1e-5)
-        np.testing.assert_allclose(a["place_heatmap"], b["place_heatmap"], rtol=0, atol=1e-5)
+def _fixture_agent(name: str, device: str = "cuda") -> PickPlaceAgent:
+    return load_agent(_trained_checkpoint(name), device=device)
 
 
-@pytest.mark.parametrize("name", ["transporter_only", "two_stream"])
-def test_graphed_act_equals_eager(name: str) -> None:
-    agent = _agent(name)
-    assert agent.pick.input_memory_format == torch.channels_last
-    for batch_size, seed in [(2, 0), (2, 1), (1, 2), (3, 3)]:
-        observations = _observations(batch_size, seed)
-        instructions = INSTRUCTIONS[:batch_size] if name == "two_stream" else [None] * batch_size
+def _act(agent: PickPlaceAgent, items: list) -> list[dict]:
+    return agent.act_batch([o for o, _ in items], [lang if agent.uses_language else None for _, lang in items])
+
+
+def _close(got: dict, ref: dict, rel: float) -> None:
+    for key in ("pick_heatmap", "place_heatmap"):
+        peak = float(ref[key].max())
+        assert np.abs(got[key] - ref[key]).max() <= rel * peak, (key, float(np.abs(got[key] - ref[key]).max()), peak)
+
+
+def _same_or_near_tie(got: dict, ref: dict, near: float = NEAR_TIE) -> bool:
+    """The same pick, or one whose reference probability is within ``near`` of the reference peak."""
+    heat = ref["pick_heatmap"]
+    return got["pick_pix"] == ref["pick_pix"] or heat[got["pick_pix"]] >= (1 - near) * heat.max()
+
+
+@pytest.mark.parametrize("name", AGENTS)
+def test_graphed_act_equals_eager_on_real_observations(name: str, real) -> None:
+    agent = _fixture_agent(name)
+    assert agent.active_device_options()["act_graphs"] and agent.pick.input_memory_format == torch.channels_last
+    for b in (1, 2, 4, 3):
+        items, others = real[:b], real[4 : 4 + b]
         agent.set_act_graphs(False)
-        eager = agent.act_batch(observations, instructions)
+        eager, eager_others = _act(agent, items), _act(agent, others)
         agent.set_act_graphs(True)
-        graphed = agent.act_batch(observations, instructions)  # captures (batch sizes 2, 1, 3) or replays
-        _assert_same(graphed, eager)
-        _assert_same(agent.act_batch(observations, instructions), eager)  # replays
-    assert len(agent._pick_graphs) == 3 and len(agent._place_graphs) == 3
+        captured = _act(agent, items)  # captures (or replays a graph of an earlier size)
+        replayed = _act(agent, others)  # new inputs through the same static buffers
+        rel = SAME_SHAPE if b in (1, 2, 4) else OTHER_SHAPE  # 3 runs padded to 4; eager ran at 3
+        for got, ref in [*zip(captured, eager, strict=True), *zip(replayed, eager_others, strict=True)]:
+            _close(got, ref, rel)
+            if rel == SAME_SHAPE:
+                assert (got["pick_pix"], got["place_pix"], got["place_rot"]) == (
+                    ref["pick_pix"], ref["place_pix"], ref["place_rot"],
+                )  # fmt: skip
+            else:
+                assert _same_or_near_tie(got, ref)
+    assert agent._pick_graphs.captured_batch_sizes() == [1, 2, 4] == agent._place_graphs.captured_batch_sizes()
+
+
+def _training_batch(items: list) -> dict:
+    return {
+        "color": torch.from_numpy(np.stack([o["color"] for o, _ in items])),
+        "height": torch.from_numpy(np.stack([o["height"] for o, _ in items])),
+        "pick_pix": torch.tensor([[100, 50], [200, 80]]),
+        "place_pix": torch.tensor([[150, 120], [60, 30]]),
+        "place_rot": torch.tensor([1, 2]),
+        "lang": [lang for _, lang in items],
+    }
+
+
+@pytest.mark.parametrize("name", AGENTS)
+def test_weights_changed_after_capture(name: str, real) -> None:
+    agent = _fixture_agent(name)
+    items = real[:2]
+    before = _act(agent, items)  # captured with the first weights
+    first = {k: v.clone() for k, v in agent.trainable_state_dict().items()}
+    optimizer = agent.make_optimizer()
+    assert optimizer.defaults["fused"]
+    for group in optimizer.param_groups:
+        group["lr"] = 1e-2  # a step large enough to move the maps
+    agent.train_step(_training_batch(items), optimizer)
+    agent.set_act_graphs(False)
+    eager = _act(agent, items)
+    agent.set_act_graphs(True)
+    after_step = _act(agent, items)
+    for got, ref, old in zip(after_step, eager, before, strict=True):
+        _close(got, ref, SAME_SHAPE)
+        assert np.abs(got["pick_heatmap"] - old["pick_heatmap"]).max() > 10 * SAME_SHAPE * old["pick_heatmap"].max()
+    stepped = {k: v.clone() for k, v in agent.trainable_state_dict().items()}
+
+    agent.load_trainable_state_dict(first)  # copied into the same tensors: the graphs read the new values
+    for got, ref in zip(_act(agent, items), before, strict=True):
+        _close(got, ref, SAME_SHAPE)
+
+    agent.load_state_dict(stepped, strict=False, assign=True)  # new tensors: the graphs must be recaptured
+    for got, ref in zip(_act(agent, items), after_step, strict=True):
+        _close(got, ref, SAME_SHAPE)
+
+
+def test_capture_under_inference_mode_serves_later_calls(real) -> None:
+    agent = _fixture_agent("transporter_only")
+    with torch.inference_mode():
+        first = _act(agent, real[:2])
+    second = _act(agent, real[2:4])  # outside inference mode: copies into the static inputs
+    agent.set_act_graphs(False)
+    for got, ref in zip(first + second, _act(agent, real[:2]) + _act(agent, real[2:4]), strict=True):
+        _close(got, ref, SAME_SHAPE)
+
+
+def _reserved_after(agent: PickPlaceAgent, sizes: list[int], items: list) -> tuple[float, list[int]]:
+    torch.cuda.synchronize()
+    base = torch.cuda.memory_reserved()
+    for b in sizes:
+        _act(agent, [items[i % len(items)] for i in range(b)])
+    torch.cuda.synchronize()
+    return (torch.cuda.memory_reserved() - base) / 2**20, agent._pick_graphs.captured_batch_sizes()
+
+
+def test_graph_memory_does_not_grow_with_the_worker_count(real) -> None:
+    """An engine with N workers hands act_batch every size 1..N. Graphs exist only at 1, 2, 4 and 8 and share
+    one pool, so acting at all sizes up to 16 reserves little more than acting at 8 alone (separate pools
+    per size, as before, reserved about the sum over the sizes: ~4.5 times as much for 1..8)."""
+    results = {}
+    for label, sizes in [("8 only", [8]), ("1..8", list(range(1, 9))), ("1..16", list(range(1, 17)))]:
+        gc.collect()
+        torch.cuda.empty_cache()
+        agent = _fixture_agent("two_stream")
+        results[label] = _reserved_after(agent, sizes, real)
+        del agent
+    print("reserved MiB after acting, graph sizes:", results)
+    eight, _ = results["8 only"]
+    assert results["1..8"][1] == [1, 2, 4, 8] == results["1..16"][1]
+    assert results["1..8"][0] <= 2.0 * eight + 64 and results["1..16"][0] <= 2.0 * eight + 64, results
+
+
+def test_a_dropped_agent_frees_its_gpu_memory_without_gc(real) -> None:
+    def use() -> None:
+        agent = _fixture_agent("two_stream")
+        for b in (1, 2, 3):
+            _act(agent, real[:b])
+        agent.make_optimizer()
+
+    use()  # one-off lazy initialisation (cuBLAS workspaces, imports) is not the agent's
+    gc.collect()
+    torch.cuda.synchronize()
+    base = torch.cuda.memory_allocated()
+    gc.disable()
+    try:
+        use()
+        torch.cuda.synchronize()
+        left = torch.cuda.memory_allocated() - base
+    finally:
+        gc.enable()
+    assert left < 2**20, f"{left / 2**20:.1f} MiB still allocated after the agent was dropped"
+
+
+@pytest.mark.skipif(not torch.cuda.is_available() or torch.cuda.device_count() < 2, reason="needs two GPUs")
+def test_graphs_on_a_device_other_than_the_current_one(real) -> None:
+    assert torch.cuda.current_device() == 0
+    agent = _fixture_agent("two_stream", device="cuda:1")
+    captured, replayed = _act(agent, real[:2]), _act(agent, real[2:4])
+    agent.set_act_graphs(False)
+    for got, ref in zip(captured + replayed, _act(agent, real[:2]) + _act(agent, real[2:4]), strict=True):
+        _close(got, ref, SAME_SHAPE)
+    assert torch.cuda.current_device() == 0 and len(agent._pick_graphs) == 1
+
+
+def test_concurrent_callers_get_their_own_actions(real) -> None:
+    agent = _fixture_agent("two_stream")
+    jobs = [real[2 * i : 2 * i + 2] for i in range(4)]
+    expected = [_act(agent, job) for job in jobs]  # captured once (batch 2), then replayed by every thread
+    failures: list[str] = []
+
+    def caller(i: int) -> None:
+        for _ in range(5):
+            for got, ref in zip(_act(agent, jobs[i]), expected[i], strict=True):
+                if not np.array_equal(got["place_heatmap"], ref["place_heatmap"]):
+                    failures.append(f"thread {i} got a heatmap of another call")
+
+    threads = [threading.Thread(target=caller, args=(i,)) for i in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert failures == []
+
+
+def test_a_failed_capture_acts_eagerly_with_one_warning(caplog) -> None:
+    from cliport.models.cuda_graphs import GraphedForward
+
+    def syncs_with_the_host(x: torch.Tensor) -> torch.Tensor:
+        return x * float(x.sum().item())  # not capturable
+
+    graphed = GraphedForward(syncs_with_the_host)
+    x = torch.ones(2, 3, device="cuda")
+    with caplog.at_level(logging.WARNING, logger="cliport.models.cuda_graphs"):
+        assert torch.equal(graphed(x), x * 6) and torch.equal(graphed(2 * x), 2 * x * 12)
+    assert len([r for r in caplog.records if "acting eagerly" in r.getMessage()]) == 1
+    agent = make_agent("transporter_only", {"width": 0.125}).to("cuda")  # graphs still work afterwards
+    agent.act({"color": np.zeros((320, 160, 3), np.uint8), "height": np.zeros((320, 160), np.float32)})
+    assert len(agent._pick_graphs) == 1 and agent._graph_memory.failed is None
+
+
+def test_a_samples_action_does_not_depend_on_its_batch_mates(real) -> None:
+    """At one (padded) batch size, what the other observations are changes nothing, bit for bit."""
+    agent = _fixture_agent("two_stream")
+    for graphs in (True, False):
+        agent.set_act_graphs(graphs)
+        one = _act(agent, [real[0], *real[1:4]])[0]
+        other = _act(agent, [real[0], *real[5:8]])[0]
+        assert np.array_equal(one["pick_heatmap"], other["pick_heatmap"])
+        assert np.array_equal(one["place_heatmap"], other["place_heatmap"])
+
+
+@pytest.mark.parametrize("name", AGENTS)
+def test_batch_size_changes_at_most_near_ties(name: str, real, record_property) -> None:
+    """Alone (padded size 1) against in a batch of 8: other kernels may round differently. Reported: how many
+    of the 8 actions change; asserted: maps within OTHER_SHAPE of their peak, picks the same or near-ties."""
+    agent = _fixture_agent(name)
+    alone = [_act(agent, [item])[0] for item in real]
+    batched = _act(agent, real)
+    changed = sum(
+        (a["pick_pix"], a["place_pix"], a["place_rot"]) != (b["pick_pix"], b["place_pix"], b["place_rot"])
+        for a, b in zip(alone, batched, strict=True)
+    )
+    print(f"{name}: {changed} of {len(real)} actions differ between batch 1 and batch 8")
+    record_property("actions_changed_batch1_vs_8", changed)
+    for got, ref in zip(batched, alone, strict=True):
+        _close(got, ref, OTHER_SHAPE)
+        assert _same_or_near_tie(got, ref)
+
+
+def test_fp32_and_bf16_agree_on_real_observations(real, record_property) -> None:
+    agent = _fixture_agent("two_stream")
+    if not agent.active_device_options()["bf16_clip"]:
+        pytest.skip("this GPU does not compute bf16 natively")
+    bf16 = [_act(agent, [item])[0] for item in real]
+    agent.optimize_for_device(bf16_clip=False)
+    assert next(agent.encoder.image_module().parameters()).dtype == torch.float32
+    fp32 = [_act(agent, [item])[0] for item in real]
+    same = sum(a["pick_pix"] == b["pick_pix"] for a, b in zip(bf16, fp32, strict=True))
+    same_place = sum(
+        (a["place_pix"], a["place_rot"]) == (b["place_pix"], b["place_rot"]) for a, b in zip(bf16, fp32, strict=True)
+    )
+    print(f"fp32 vs bf16 trunk: same pick {same}/{len(real)}, same place {same_place}/{len(real)}")
+    record_property("bf16_same_pick", same)
+    record_property("bf16_same_place", same_place)
+    for got, ref in zip(bf16, fp32, strict=True):
+        assert _same_or_near_tie(got, ref, near=0.1)  # a bf16 flip is between candidates within 10 %
+
+
+def _trunk(agent: PickPlaceAgent) -> dict[str, torch.Tensor]:
+    return {k: v.detach().cpu().clone() for k, v in agent.encoder.image_module().state_dict().items()}
+
+
+def test_bf16_is_undone_off_cuda_and_when_switched_off() -> None:
+    torch.manual_seed(0)
+    agent = make_agent("two_stream", {"width": 0.125, "clip_weights": "random"})
+    original = _trunk(agent)
+    agent.to("cuda")
+    expected = torch.bfloat16 if bf16_native(agent.device) else torch.float32
+    assert agent.encoder.image_dtype() == expected
+    agent.to("cpu")
+    assert all(torch.equal(v, original[k]) for k, v in _trunk(agent).items())
+    agent.to("cuda").optimize_for_device(bf16_clip=False)
+    assert agent.encoder.image_dtype() == torch.float32
+    assert all(torch.equal(v, original[k]) for k, v in _trunk(agent).items())
+
+
+def test_no_bf16_where_the_gpu_lacks_it(monkeypatch) -> None:
+    monkeypatch.setattr("cliport.agents.base.bf16_native", lambda device: False)
+    agent = make_agent("two_stream", {"width": 0.125, "clip_weights": "random"}).to("cuda")
+    assert agent.encoder.image_dtype() == torch.float32 and not agent.active_device_options()["bf16_clip"]
+
+
+def test_a_cpu_run_resumes_on_cuda_with_fused_adam(real) -> None:
+    """What runs started on a CPU (or before the speed work) saved: NCHW moments of a foreach Adam. On CUDA
+    the parameters are channels_last and Adam is fused; the resumed state must fit them and step."""
+    from cliport.train.resume import load_optimizer_state
+
+    agent = _fixture_agent("transporter_only", device="cpu")
+    optimizer = torch.optim.Adam(agent.trainable_parameters(), lr=1e-4)  # the pre-speed-work construction
+    batch = _training_batch(real[:2])
+    agent.train_step(batch, optimizer)
+    weights, state = agent.trainable_state_dict(), optimizer.state_dict()
+
+    resumed = _fixture_agent("transporter_only")
+    resumed.load_trainable_state_dict(weights)
+    fused = resumed.make_optimizer()
+    load_optimizer_state(fused, state)
+    assert fused.param_groups[0]["fused"]
+    for p in resumed.trainable_parameters():
+        assert fused.state[p]["exp_avg"].stride() == p.stride() and fused.state[p]["exp_avg"].device == p.device
+    info = resumed.train_step(batch, fused)
+    assert np.isfinite(info["loss"])
 
 
 def test_settings_follow_the_device() -> None:
-    agent = _agent("two_stream")
+    agent = make_agent("two_stream", {"width": 0.125, "clip_weights": "random"}).to("cuda")
     weights = [p for p in agent.pick.net.spatial.parameters() if p.dim() == 4]
     assert all(p.is_contiguous(memory_format=torch.channels_last) for p in weights)
-    assert next(agent.encoder.model.visual.parameters()).dtype == torch.bfloat16
+    native = bf16_native(agent.device)
+    assert agent.encoder.image_dtype() == (torch.bfloat16 if native else torch.float32)
     assert next(agent.encoder.model.transformer.parameters()).dtype == torch.float32
-    optimizer = agent.make_optimizer()
-    assert optimizer.defaults["fused"]
-    batch = {
-        "color": torch.randint(0, 255, (2, H, W, 3), dtype=torch.uint8).pin_memory(),
-        "height": (torch.rand(2, H, W) * 0.05).pin_memory(),
-        "pick_pix": torch.tensor([[10, 20], [100, 50]]),
-        "place_pix": torch.tensor([[200, 30], [50, 140]]),
-        "place_rot": torch.tensor([3, 30]),
-        "lang": INSTRUCTIONS[:2],
-    }
-    info = agent.train_step(batch, optimizer)
-    assert np.isfinite(info["loss"])
+    assert agent.make_optimizer().defaults["fused"]
     agent.to("cpu")
     assert agent.pick.input_memory_format == torch.contiguous_format
-    assert next(agent.encoder.model.visual.parameters()).dtype == torch.float32
+    assert agent.encoder.image_dtype() == torch.float32
     assert all(p.is_contiguous() for p in agent.parameters())
 
 
-def test_switches_turn_each_setting_off() -> None:
-    torch.manual_seed(0)
-    agent = make_agent("two_stream", CONFIGS["two_stream"])
+def test_switches_turn_each_setting_off(real) -> None:
+    agent = make_agent("two_stream", {"width": 0.125, "clip_weights": "random"})
     agent.optimize_for_device(channels_last=False, bf16_clip=False, fused_adam=False, act_graphs=False).to("cuda")
+    assert not any(agent.active_device_options().values())
     assert agent.pick.input_memory_format == torch.contiguous_format
-    assert next(agent.encoder.model.visual.parameters()).dtype == torch.float32
+    assert agent.encoder.image_dtype() == torch.float32
     assert not agent.make_optimizer().defaults["fused"]
-    agent.act(_observations(1, 0)[0], INSTRUCTIONS[0])
+    _act(agent, real[:1])
     assert len(agent._pick_graphs) == 0

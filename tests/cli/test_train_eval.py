@@ -9,6 +9,7 @@ from cliport.cli import demos as demos_cli
 from cliport.cli import eval as eval_cli
 from cliport.cli import train as train_cli
 from cliport.cli.common import run_cli
+from cliport.env.environment import expected_renderer
 from cliport.train import trainer
 from cliport.utils.files import load_torch
 from cliport.utils.run_dir import RunDir
@@ -57,6 +58,7 @@ def test_train_then_eval(runs, agent, capsys):
     with open(os.path.join(run_dir, "val.json")) as f:
         val = json.load(f)
     assert set(val["checkpoints"]) == {"5", "10"} and val["best_step"] in (5, 10)
+    assert val["renderer"] == expected_renderer("auto")  # the record of what validation rendered with
     with open(os.path.join(run_dir, "metrics.csv")) as f:
         assert [line.split(",")[0] for line in f.read().split()[1:]] == ["5", "10"]
     capsys.readouterr()
@@ -65,7 +67,7 @@ def test_train_then_eval(runs, agent, capsys):
     assert summary["n_episodes"] == 2 and summary["agent"] == agent and summary["mode"] == "test"
     assert 0.0 <= summary["mean_score"] <= 100.0 and len(summary["ci95"]) == 2 and len(summary["success_ci95"]) == 2
     assert summary["clip_weights"] == ("random" if agent == "two_stream" else None)
-    assert summary["checkpoint"] == val["best_step"]
+    assert summary["checkpoint"] == val["best_step"] and summary["renderer"] == val["renderer"]
     with open(os.path.join(run_dir, "eval", f"{TASK}-test-{val['best_step']}.json")) as f:
         assert [e["seed"] for e in json.load(f)["episodes"]] == [10001, 10003]
 
@@ -215,3 +217,43 @@ def test_bad_widths_are_rejected(data_dir, tmp_path, capsys):
         err = capsys.readouterr().err.strip().splitlines()
         assert stop.value.code == 2 and err[-1] == f"error: width must be > 0, got {float(width)}"
         assert all(line.startswith("note: transporter_only has no setting clip_weights") for line in err[:-1])
+
+
+def test_demos_and_validation_must_render_alike(data_dir, tmp_path, capsys):
+    """The demos record their renderer; validation with the other one is refused, like another camera scale."""
+    from cliport.data.episode_io import existing_seeds, read_meta
+
+    folder = os.path.join(data_dir, f"{TASK}-train")
+    demos = read_meta(os.path.join(folder, f"{existing_seeds(folder)[0]:06d}.npz"))["renderer"]
+    assert demos == expected_renderer("auto")
+    other, setting, fix = ("egl", "egl", "cpu") if demos == "tiny" else ("tiny", "cpu", "egl")
+    args = _train_args(data_dir, str(tmp_path / "run"), "transporter_only", extra=["--renderer", setting])
+    with pytest.raises(SystemExit) as stop:
+        _run(train_cli.main, args)
+    err = capsys.readouterr().err.strip().splitlines()[-1:]  # after the note on --clip-weights
+    assert stop.value.code == 2 and err == [
+        f"error: the {TASK} demos were rendered with {demos} but validation would render with {other} "
+        f"(renderer {setting!r} on this machine): pass --renderer {fix}"
+    ], err
+
+
+def test_eval_notes_a_renderer_other_than_validations(runs, tmp_path, capsys):
+    import shutil
+
+    from cliport.utils.files import read_json, write_json
+
+    run_dir = str(tmp_path / "copy")
+    shutil.copytree(runs["transporter_only"], run_dir)
+    val = read_json(RunDir(run_dir).val)
+    ours = val["renderer"]
+    val["renderer"] = "egl" if ours == "tiny" else "tiny"  # as if validated on another machine
+    write_json(RunDir(run_dir).val, val)
+    capsys.readouterr()
+    _run(eval_cli.main, ["--run-dir", run_dir, "--n-episodes", "1", "--camera-scale", "0.5", "--no-progress"])
+    captured = capsys.readouterr()
+    assert json.loads(captured.out.strip().splitlines()[-1])["renderer"] == ours
+    notes = [line for line in captured.err.splitlines() if line.startswith("note: rendered with")]
+    assert notes == [
+        f"note: rendered with {ours}; the run was validated with {val['renderer']} (their pixels differ; "
+        f"--renderer {'egl' if ours == 'tiny' else 'cpu'} renders as validation did)"
+    ], captured.err

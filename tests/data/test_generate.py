@@ -7,6 +7,7 @@ import pytest
 from cliport.cli import demos as demos_cli
 from cliport.data.episode_io import EpisodeFileError, existing_seeds, load_episode
 from cliport.data.generate import DemoConfig, generate
+from cliport.env.environment import expected_renderer
 
 TASKS = ["place-red-in-green", "block-insertion"]
 
@@ -32,6 +33,7 @@ def test_two_tasks_two_workers(data_dir):
         assert ep.color.shape[1:] == (320, 160, 3) and ep.color.dtype == np.uint8
         assert ep.height.shape[1:] == (320, 160) and ep.pose0.shape[1] == 7
         assert ep.meta["task"] == task and ep.meta["seed"] == seeds[0] and ep.meta["total_reward"] > 0.99
+        assert ep.meta["renderer"] == summary["renderer"] == expected_renderer("auto")
         assert len(ep.lang_goal) == len(ep)
 
 

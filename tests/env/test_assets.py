@@ -15,22 +15,58 @@ import pytest
 from cliport.env import assets
 
 # A process that opens environments in a private temp dir and prints their asset folders.
+# "wait" prints only once the first environment is closed, then waits in short sleeps: CPython runs a
+# signal's Python handler between bytecodes, so a SIGINT landing after the last check but before a long
+# sleep(60) starts (a window of microseconds) is only acted on when that sleep returns, 60 s later. That
+# race (CPython's, not this library's) made this test time out about once in 40 runs. "closing" and
+# "restoring" deliver the SIGINT deterministically inside Environment.close(): during the native
+# disconnect (blocked while it runs, so it lands as soon as the call returns, as a real one would), and
+# between the two file-descriptor restores of the silenced region around it.
 _ENV_SCRIPT = textwrap.dedent(
     """
-    import sys, time
+    import os, signal, sys, time
+    from cliport.env import bullet
     from cliport.env.environment import EnvConfig, Environment
+
+    # As started from a terminal, whatever the test runner's own SIGINT disposition: a process started
+    # with SIGINT ignored (a background job of a script, nohup) inherits that, and Python keeps it.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
     config = EnvConfig.defaults(camera_scale=0.5)
     first = Environment(config)
     first.reset(0)
     second = Environment(config)
     second.reset(0)
-    print(first.asset_dir, second.asset_dir, flush=True)
+    where = sys.argv[1]
+    if where == "closing":
+        disconnect = bullet.p.disconnect
+
+        def interrupted_disconnect(*args, **kwargs):
+            signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+            os.kill(os.getpid(), signal.SIGINT)
+            disconnect(*args, **kwargs)
+            signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+
+        bullet.p.disconnect = interrupted_disconnect
+    if where == "restoring":
+        dup2, calls = os.dup2, []
+
+        def interrupted_dup2(fd, fd2, *args):
+            dup2(fd, fd2, *args)
+            calls.append(fd2)
+            if len(calls) == 3:  # silence 1, silence 2, restore 1: Ctrl-C before stderr is restored
+                os.kill(os.getpid(), signal.SIGINT)
+
+        os.dup2 = interrupted_dup2
+    if where in ("closing", "restoring"):
+        print(first.asset_dir, second.asset_dir, flush=True)
     first.close()
-    if sys.argv[1] == "wait":
-        time.sleep(60)
-    if sys.argv[1] == "raise":
+    print(first.asset_dir, second.asset_dir, flush=True)
+    if where == "raise":
         raise RuntimeError("boom")
+    if where == "wait":
+        for _ in range(1200):
+            time.sleep(0.05)
     """
 )
 
@@ -124,6 +160,20 @@ def test_sigterm_and_ctrl_c_leave_no_folder(tmp_path: Path, signum: int) -> None
     else:
         # Ctrl-C still raises KeyboardInterrupt; Python then exits by re-raising SIGINT after its clean-up.
         assert code == -signal.SIGINT and "KeyboardInterrupt" in stderr, stderr
+    assert _leftovers(tmp) == []
+
+
+@pytest.mark.parametrize("where", ["closing", "restoring"])
+def test_ctrl_c_inside_environment_close_is_not_lost(tmp_path: Path, where: str) -> None:
+    """A SIGINT during the native disconnect, or between the fd restores around it, still ends the process
+    with a visible KeyboardInterrupt and no folder left."""
+    tmp, script = _script(tmp_path, _ENV_SCRIPT)
+    out = subprocess.run(
+        [sys.executable, str(script), where], env=_env(tmp), capture_output=True, text=True, timeout=60
+    )
+    assert out.returncode == -signal.SIGINT, out.stderr
+    assert out.stderr.rstrip().endswith("KeyboardInterrupt") and "in close" in out.stderr, out.stderr
+    assert len(out.stdout.split()) == 2  # printed once: close() never returned
     assert _leftovers(tmp) == []
 
 

@@ -59,17 +59,20 @@ class HeightAgent:
 
 def _same_whatever_the_workers(make_agent_fn, n_episodes):
     runs = {}
-    for workers in (1, 2):
+    # One worker in this process (no step timeout), one worker process, two worker processes.
+    for label, workers, timeout in [("here", 1, None), (1, 1, 300.0), (2, 2, 300.0)]:
         agent = make_agent_fn()
-        result = evaluate(agent, TASK, "val", n_episodes, camera_scale=0.5, progress=False, workers=workers)
-        runs[workers] = (result, agent)
+        result = evaluate(
+            agent, TASK, "val", n_episodes, camera_scale=0.5, progress=False, workers=workers, step_timeout=timeout
+        )
+        runs[label] = (result, agent)
     (one, agent1), (two, agent2) = runs[1], runs[2]
     assert [e["seed"] for e in one["episodes"]] == [1 + 2 * i for i in range(n_episodes)]
-    assert one["episodes"] == two["episodes"]
+    assert one["episodes"] == two["episodes"] == runs["here"][0]["episodes"]
     assert {k: v for k, v in one.items() if k != "workers"} == {k: v for k, v in two.items() if k != "workers"}
-    assert one["workers"] == 1 and two["workers"] == 2
+    assert one["workers"] == 1 and two["workers"] == 2 and one["renderer"] == runs["here"][0]["renderer"]
     # Every observation the agent saw, and what it did, is the same (pixels are identical across processes).
-    assert sorted(agent1.calls) == sorted(agent2.calls)
+    assert sorted(agent1.calls) == sorted(agent2.calls) == sorted(runs["here"][1].calls)
     assert len(agent1.calls) == sum(e["actions"] for e in one["episodes"])
     return one
 
@@ -124,3 +127,47 @@ def test_worker_counts(monkeypatch):
         resolve_workers(0, 10)
     with pytest.raises(ConfigError, match="--val-workers 4 is more than the 2 episode"):
         resolve_workers(4, 2, "--val-workers")
+
+
+def test_a_hung_worker_is_killed_logged_replaced_and_its_episode_rerun(tmp_path, monkeypatch, caplog):
+    config = EnvConfig.defaults(camera_scale=0.5)
+    with EvalEngine(TASK, "val", config, workers=2, progress=False) as engine:
+        clean = engine.run(HeightAgent(), [1, 3, 5])
+    monkeypatch.setenv(engine_module.HANG_ENV, f"3:{tmp_path / 'hung'}")
+    with caplog.at_level(logging.WARNING, logger="cliport.evaluation.engine"):
+        with EvalEngine(TASK, "val", config, workers=2, progress=False, step_timeout=3.0) as engine:
+            rows = engine.run(HeightAgent(), [1, 3, 5])
+            assert engine.renderer == "tiny" and all(w.process.is_alive() for w in engine.workers)
+    assert (tmp_path / "hung-3").exists()  # the worker did hang on seed 3 (SIGTERM blocked: killed by SIGKILL)
+    strip = ("seconds",)
+    assert [{k: v for k, v in r.items() if k not in strip} for r in rows] == [
+        {k: v for k, v in r.items() if k not in strip} for r in clean
+    ]  # the re-run episode is the episode a healthy worker plays
+    lines = [r.getMessage() for r in caplog.records if "hung" in r.getMessage()]
+    assert len(lines) == 1 and "did not answer within 3 s" in lines[0] and "seed 3 of block-insertion-val" in lines[0]
+
+
+def test_ctrl_c_during_hung_workers_stops_everything_within_seconds(tmp_path, monkeypatch):
+    """Both workers stuck in what looks like a native call (SIGTERM blocked) and no step timeout: a Ctrl-C
+    still ends the run, and closing kills both in parallel (about SHUTDOWN_GRACE + 3 s, not 10 s each)."""
+    import _thread
+    import threading
+    import time
+
+    monkeypatch.setenv(engine_module.HANG_ENV, f"1,3:{tmp_path / 'hung'}")
+    engine = EvalEngine(TASK, "val", EnvConfig.defaults(camera_scale=0.5), workers=2, progress=False, step_timeout=None)
+    engine.start()
+    processes = [w.process for w in engine.workers]
+    timer = threading.Timer(4.0, _thread.interrupt_main)  # Ctrl-C once both episodes are stuck
+    timer.start()
+    start = time.monotonic()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            engine.run(HeightAgent(), [1, 3])
+    finally:
+        timer.cancel()
+    elapsed = time.monotonic() - start
+    assert (tmp_path / "hung-1").exists() and (tmp_path / "hung-3").exists()
+    assert not any(p.is_alive() for p in processes) and engine.workers == []
+    # 4 s until the interrupt, at most POLL_SECONDS until it is seen, then the parallel shutdown.
+    assert elapsed < 4.0 + engine_module.POLL_SECONDS + engine_module.SHUTDOWN_GRACE + 3.5, elapsed

@@ -158,7 +158,7 @@ def test_the_safe_loader_keeps_lightning_data_classes(transporter_ckpt, tmp_path
     with_hp.parent.mkdir()
     torch.save(payload, with_hp)
     monkeypatch.delitem(sys.modules, "omegaconf")
-    from cliport.deploy.convert import convert_checkpoint
+    from cliport.train.convert import convert_checkpoint
 
     summary = convert_checkpoint(str(with_hp), str(tmp_path / "run"))
     assert summary["agent"] == "transporter_only" and summary["task"] == TASK
@@ -166,7 +166,7 @@ def test_the_safe_loader_keeps_lightning_data_classes(transporter_ckpt, tmp_path
 
 @pytest.fixture(scope="module")
 def converted_run(transporter_ckpt, tmp_path_factory) -> str:
-    from cliport.deploy.convert import convert_checkpoint
+    from cliport.train.convert import convert_checkpoint
 
     run = str(tmp_path_factory.mktemp("converted") / "run")
     convert_checkpoint(str(transporter_ckpt[0]), run)

@@ -15,7 +15,7 @@ import pytest
 import torch
 
 from cliport.agents import load_agent
-from cliport.deploy.convert import convert_checkpoint
+from cliport.train.convert import convert_checkpoint
 from cliport.utils.run_dir import RunDir
 
 TASK = "put-block-in-bowl-seen-colors"
