@@ -1,9 +1,12 @@
 """Top-down orthographic heightmaps fused from RGB-D cameras, and pixel <-> world conversions.
 
-Conventions: a heightmap has shape (rows, cols) = (320, 160) for the default bounds; row ``u`` runs
-along world y and column ``v`` along world x. Cell (u, v) is centred on
-``(x0 + v * s, y0 + u * s)``, the point ``pix_to_xyz`` returns, so that binning points, labelling
-actions (``xyz_to_pix``) and executing them (``pix_to_xyz``) all agree to the pixel.
+Conventions, the reference CLIPort's (``utils.get_heightmap``, ``get_fused_heightmap``,
+``pix_to_xyz``, ``xyz_to_pix``), so that its checkpoints see the maps they were trained on: a heightmap
+has shape (rows, cols) = (320, 160) for the default bounds; row ``u`` runs along world y and column
+``v`` along world x. Cell (u, v) holds the points with x in [x0 + v s, x0 + (v + 1) s) and y in
+[y0 + u s, y0 + (u + 1) s) (floor binning); ``pix_to_xyz`` returns its corner (x0 + v s, y0 + u s)
+and ``xyz_to_pix`` rounds, so an action labelled from a position and executed at its pixel lands
+within half a cell (1.6 mm) of it.
 """
 
 from __future__ import annotations
@@ -28,19 +31,26 @@ def heightmap_shape(bounds: np.ndarray = BOUNDS, pixel_size: float = PIXEL_SIZE)
 
 
 def pointcloud_from_depth(depth: np.ndarray, intrinsics: np.ndarray) -> np.ndarray:
-    """Back-project a (H, W) depth image with 3x3 intrinsics into (H, W, 3) camera-frame points."""
+    """Back-project a (H, W) depth image with 3x3 intrinsics into (H, W, 3) camera-frame points, float32
+    (computed in float64 from the float64 intrinsics, as the reference does)."""
     h, w = depth.shape
-    fx, fy, cx, cy = intrinsics[0, 0], intrinsics[1, 1], intrinsics[0, 2], intrinsics[1, 2]
-    px = np.arange(w, dtype=np.float32)[None, :]
-    py = np.arange(h, dtype=np.float32)[:, None]
-    x = (px - cx) * depth / fx
-    y = (py - cy) * depth / fy
-    return np.stack([x, np.broadcast_to(y, depth.shape) * 1.0, depth], axis=-1).astype(np.float32)
+    px, py = np.meshgrid(np.linspace(0, w - 1, w), np.linspace(0, h - 1, h))
+    x = (px - intrinsics[0, 2]) * (depth / intrinsics[0, 0])
+    y = (py - intrinsics[1, 2]) * (depth / intrinsics[1, 1])
+    return np.float32([x, y, depth]).transpose(1, 2, 0)
 
 
 def transform_points(points: np.ndarray, rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
-    """Apply x -> R x + t to an (..., 3) array of points."""
-    return points @ rotation.T.astype(np.float32) + translation.astype(np.float32)
+    """Apply x -> R x + t to an (..., 3) float32 array of points; each coordinate is the float64 sum of the
+    homogeneous products, stored as float32 (the reference's arithmetic)."""
+    transform = np.eye(4)
+    transform[:3, :3] = rotation
+    transform[:3, 3] = np.asarray(translation, dtype=np.float64).reshape(3)
+    homogeneous = np.concatenate([points, np.ones((*points.shape[:-1], 1), dtype=points.dtype)], axis=-1)
+    out = np.empty_like(points)
+    for i in range(3):
+        out[..., i] = np.sum(transform[i, :] * homogeneous, axis=-1)
+    return out
 
 
 def project_to_heightmap(
@@ -50,6 +60,10 @@ def project_to_heightmap(
     pixel_size: float = PIXEL_SIZE,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Orthographically project world points onto the xy grid; the highest point wins each cell.
+
+    Points with x in [x0, x1), y in [y0, y1) and z in [z0, z1) fall in the cell ``floor((x - x0) / s)``,
+    ``floor((y - y0) / s)``; among a cell's points the last of a sort by z (numpy's default argsort)
+    sets its height and value.
 
     Args:
         points: (N, 3) or (H, W, 3) world-frame points.
@@ -63,39 +77,37 @@ def project_to_heightmap(
     pts = points.reshape(-1, 3)
     channels = 1 if colors.ndim == points.ndim - 1 else colors.shape[-1]
     col = colors.reshape(-1, channels)
-    v = np.round((pts[:, 0] - bounds[0, 0]) / pixel_size).astype(np.int64)
-    u = np.round((pts[:, 1] - bounds[1, 0]) / pixel_size).astype(np.int64)
-    z = pts[:, 2] - bounds[2, 0]
-    keep = (v >= 0) & (v < cols) & (u >= 0) & (u < rows) & (z >= 0) & (z < bounds[2, 1] - bounds[2, 0])
-    cell = u[keep] * cols + v[keep]
-    z = z[keep]
-    col = col[keep]
-    order = np.lexsort((z, cell))
-    cell, z, col = cell[order], z[order], col[order]
-    last = np.ones(cell.shape, dtype=bool)
-    last[:-1] = cell[1:] != cell[:-1]
-    height = np.zeros(rows * cols, dtype=np.float32)
-    color = np.zeros((rows * cols, channels), dtype=colors.dtype)
-    seen = np.zeros(rows * cols, dtype=bool)
-    height[cell[last]] = z[last]
-    color[cell[last]] = col[last]
-    seen[cell[last]] = True
-    return height.reshape(rows, cols), color.reshape(rows, cols, channels), seen.reshape(rows, cols)
+    keep = (
+        (pts[:, 0] >= bounds[0, 0]) & (pts[:, 0] < bounds[0, 1])
+        & (pts[:, 1] >= bounds[1, 0]) & (pts[:, 1] < bounds[1, 1])
+        & (pts[:, 2] >= bounds[2, 0]) & (pts[:, 2] < bounds[2, 1])
+    )  # fmt: skip
+    pts, col = pts[keep], col[keep]
+    order = np.argsort(pts[:, -1])
+    pts, col = pts[order], col[order]
+    v = np.clip(np.int32(np.floor((pts[:, 0] - bounds[0, 0]) / pixel_size)), 0, cols - 1)
+    u = np.clip(np.int32(np.floor((pts[:, 1] - bounds[1, 0]) / pixel_size)), 0, rows - 1)
+    height = np.zeros((rows, cols), dtype=np.float32)
+    color = np.zeros((rows, cols, channels), dtype=colors.dtype)
+    seen = np.zeros((rows, cols), dtype=bool)
+    height[u, v] = pts[:, 2] - bounds[2, 0]  # with repeated cells the last (highest) point is written
+    color[u, v] = col
+    seen[u, v] = True
+    return height, color, seen
 
 
-def fuse_heightmaps(
-    heights: list[np.ndarray], colors: list[np.ndarray], seens: list[np.ndarray]
-) -> tuple[np.ndarray, np.ndarray]:
-    """Fuse per-camera heightmaps: height = max over cameras, colour = mean over cameras that see the cell.
+def fuse_heightmaps(heights: list[np.ndarray], colors: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Fuse per-camera maps as the reference does: height = max over cameras; colour = the mean over the
+    cameras whose colour of the cell is not black (0, 0, 0), rounded; black where none.
 
     Returns (color (rows, cols, 3) uint8, height (rows, cols) float32).
     """
-    height = np.max(np.stack(heights), axis=0)
-    seen = np.stack(seens).astype(np.float32)[..., None]
-    total = np.sum(np.stack(colors).astype(np.float32) * seen, axis=0)
-    count = np.maximum(np.sum(seen, axis=0), 1.0)
-    color = np.round(total / count).astype(np.uint8)
-    return color, height.astype(np.float32)
+    colormaps = np.float32(colors)
+    valid = np.sum(colormaps, axis=3) > 0
+    repeat = np.sum(valid, axis=0)
+    repeat[repeat == 0] = 1
+    color = np.uint8(np.round(np.sum(colormaps, axis=0) / repeat[..., None]))
+    return color, np.max(np.float32(heights), axis=0)
 
 
 class CameraModel(Protocol):
@@ -136,8 +148,9 @@ def fuse_cameras(
     """Fuse RGB-D views into the top-down colour and height maps: the one fusion of the project.
 
     Each camera's depth is back-projected with its intrinsics, moved to the world frame by its pose,
-    projected onto the grid (highest point wins a cell) and the cameras are fused (height = max, colour
-    = mean over the cameras that see the cell). Depth values that are not finite or outside the camera's
+    projected onto the grid (:func:`project_to_heightmap`: floor binning, the highest point wins a cell)
+    and the cameras are fused (:func:`fuse_heightmaps`: height = max, colour = mean over the cameras
+    whose colour of the cell is not black), all as the reference CLIPort computes them. Depth values that are not finite or outside the camera's
     ``zrange`` (e.g. 0 = no reading on a real sensor) are dropped.
 
     Args:
@@ -158,7 +171,7 @@ def fuse_cameras(
         heights.append(h)
         colors.append(c)
         seens.append(s)
-    fused_color, fused_height = fuse_heightmaps(heights, colors, seens)
+    fused_color, fused_height = fuse_heightmaps(heights, colors)
     return FusedMap(fused_color, fused_height, tuple(int(s.sum()) for s in seens))
 
 

@@ -10,15 +10,20 @@ Pose = tuple[tuple[float, float, float], tuple[float, float, float, float]]
 
 
 def quat_to_matrix(q: np.ndarray | tuple[float, ...]) -> np.ndarray:
-    """3x3 rotation matrix of a unit quaternion (x, y, z, w)."""
+    """3x3 rotation matrix of a unit quaternion (x, y, z, w), with Bullet's arithmetic
+    (``getMatrixFromQuaternion``, which the reference's fusion uses), so that fused maps agree bit for bit."""
     x, y, z, w = (float(c) for c in q)
     n = x * x + y * y + z * z + w * w
     s = 2.0 / n if n > 0 else 0.0
+    xs, ys, zs = x * s, y * s, z * s
+    wx, wy, wz = w * xs, w * ys, w * zs
+    xx, xy, xz = x * xs, x * ys, x * zs
+    yy, yz, zz = y * ys, y * zs, z * zs
     return np.array(
         [
-            [1 - s * (y * y + z * z), s * (x * y - z * w), s * (x * z + y * w)],
-            [s * (x * y + z * w), 1 - s * (x * x + z * z), s * (y * z - x * w)],
-            [s * (x * z - y * w), s * (y * z + x * w), 1 - s * (x * x + y * y)],
+            [1.0 - (yy + zz), xy - wz, xz + wy],
+            [xy + wz, 1.0 - (xx + zz), yz - wx],
+            [xz - wy, yz + wx, 1.0 - (xx + yy)],
         ]
     )
 

@@ -14,31 +14,34 @@ def test_shape_and_roundtrip():
         assert xyz[2] == pytest.approx(0.01)
 
 
-def test_projection_bins_on_pixel_centres_and_highest_wins():
-    points = np.array([[0.5, 0.0, 0.02], [0.5, 0.0, 0.05], [0.3, -0.4, 0.01], [0.9, 0.0, 0.01]])
-    colors = np.array([[10, 10, 10], [200, 0, 0], [0, 255, 0], [1, 2, 3]], dtype=np.uint8)
+def test_projection_bins_by_floor_and_highest_wins():
+    s = hm.PIXEL_SIZE
+    points = np.array([[0.5, 0.0, 0.02], [0.5, 0.0, 0.05], [0.3 + s / 2, -0.4 + s / 2, 0.01], [0.9, 0.0, 0.01],
+                       [0.25 + 10.9 * s, -0.5 + 20.9 * s, 0.03], [0.75, 0.0, 0.01]])  # fmt: skip
+    colors = np.array([[10, 10, 10], [200, 0, 0], [0, 255, 0], [1, 2, 3], [7, 7, 7], [9, 9, 9]], dtype=np.uint8)
     height, color, seen = hm.project_to_heightmap(points, colors)
     u, v = hm.xyz_to_pix((0.5, 0.0))
     assert height[u, v] == pytest.approx(0.05)
     assert tuple(color[u, v]) == (200, 0, 0)
-    u2, v2 = hm.xyz_to_pix((0.3, -0.4))
-    assert height[u2, v2] == pytest.approx(0.01) and seen[u2, v2]
-    assert seen.sum() == 2  # the point at x=0.9 is out of bounds
+    assert height[32, 16] == pytest.approx(0.01) and seen[32, 16]  # (0.3, -0.4) is the corner of cell (32, 16)
+    # 0.9 of a cell past a corner is still that cell (the reference floors; rounding would move it on).
+    assert seen[20, 10] and tuple(color[20, 10]) == (7, 7, 7) and not seen[21, 11]
+    assert seen.sum() == 3  # x = 0.9 is out of bounds, and so is x = 0.75 (the upper bound is open)
 
 
-def test_fusion_max_height_mean_colour():
+def test_fusion_max_height_mean_of_non_black_colours():
     shape = (320, 160)
     h1, h2 = np.zeros(shape, np.float32), np.zeros(shape, np.float32)
     h1[5, 5], h2[5, 5] = 0.02, 0.03
     c1, c2 = np.zeros(shape + (3,), np.uint8), np.zeros(shape + (3,), np.uint8)
-    c1[5, 5], c2[5, 5] = (100, 0, 0), (200, 0, 0)
+    c1[5, 5], c2[5, 5] = (100, 0, 0), (201, 0, 0)
     c1[6, 6] = (50, 50, 50)
-    s1, s2 = np.zeros(shape, bool), np.zeros(shape, bool)
-    s1[5, 5] = s2[5, 5] = s1[6, 6] = True
-    color, height = hm.fuse_heightmaps([h1, h2], [c1, c2], [s1, s2])
-    assert height[5, 5] == pytest.approx(0.03)
-    assert tuple(color[5, 5]) == (150, 0, 0)
+    c1[7, 7], c2[7, 7], h2[7, 7] = (90, 90, 90), (0, 0, 0), 0.01  # the second camera saw black there
+    color, height = hm.fuse_heightmaps([h1, h2], [c1, c2])
+    assert height[5, 5] == pytest.approx(0.03) and height[7, 7] == pytest.approx(0.01)
+    assert tuple(color[5, 5]) == (150, 0, 0)  # 150.5 rounds half to even, as numpy does
     assert tuple(color[6, 6]) == (50, 50, 50)  # seen by one camera only: not averaged with black
+    assert tuple(color[7, 7]) == (90, 90, 90)  # a black colour counts as no view of the cell
 
 
 def test_pointcloud_backprojection():
