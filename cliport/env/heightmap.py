@@ -150,8 +150,8 @@ def fuse_cameras(
     Each camera's depth is back-projected with its intrinsics, moved to the world frame by its pose,
     projected onto the grid (:func:`project_to_heightmap`: floor binning, the highest point wins a cell)
     and the cameras are fused (:func:`fuse_heightmaps`: height = max, colour = mean over the cameras
-    whose colour of the cell is not black), all as the reference CLIPort computes them. Depth values that are not finite or outside the camera's
-    ``zrange`` (e.g. 0 = no reading on a real sensor) are dropped.
+    whose colour of the cell is not black), all as the reference CLIPort computes them. Depth values that
+    are not finite or outside the camera's ``zrange`` (e.g. 0 = no reading on a real sensor) are dropped.
 
     Args:
         images: per camera (color (H, W, 3) uint8, depth (H, W) float metres along the optical axis).

@@ -78,6 +78,23 @@ PLAIN_GLOBALS: dict[str, Any] = {
     "_codecs.encode": lambda text, encoding="latin1": text.encode(encoding),  # how protocol 2 stores bytes
 }
 
+def _numpy_globals() -> dict[str, Any]:
+    import numpy as np
+
+    try:
+        from numpy._core import multiarray
+    except ImportError:  # numpy 1.x
+        from numpy.core import multiarray  # type: ignore[no-redef]
+    table: dict[str, Any] = {"numpy.ndarray": np.ndarray, "numpy.dtype": np.dtype}
+    for module in ("numpy.core.multiarray", "numpy._core.multiarray"):  # numpy 1.x and 2.x names
+        table[f"{module}._reconstruct"] = multiarray._reconstruct
+        table[f"{module}.scalar"] = multiarray.scalar
+    return table
+
+
+#: Real numpy constructors of arrays, dtypes and scalars from their bytes (no other code).
+NUMPY_GLOBALS: dict[str, Any] = _numpy_globals()
+
 #: Namespaces of data-only classes found in PyTorch Lightning checkpoints (hyper-parameters, loop state).
 LIGHTNING_DATA_NAMESPACES = (
     "omegaconf.",
