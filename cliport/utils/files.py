@@ -58,7 +58,11 @@ def load_torch(path: str | os.PathLike[str], weights_only: bool = True) -> Any:
         raise CheckpointError(f"checkpoint not found: {path}")
     try:
         return torch.load(path, map_location="cpu", weights_only=weights_only)
-    except (RuntimeError, EOFError, zipfile.BadZipFile, pickle.UnpicklingError, ValueError, OSError) as e:
+    except (
+        RuntimeError, EOFError, zipfile.BadZipFile, pickle.UnpicklingError, ValueError, OSError,
+        # what the weights-only unpickler raises on random bytes besides UnpicklingError (~10% of files)
+        IndexError, KeyError, UnicodeDecodeError,
+    ) as e:  # fmt: skip
         first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
         if "weights_only" in first or "Weights only load failed" in str(e):
             first = "it holds objects that a cliport checkpoint never holds"
