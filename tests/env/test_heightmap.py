@@ -14,31 +14,45 @@ def test_shape_and_roundtrip():
         assert xyz[2] == pytest.approx(0.01)
 
 
-def test_projection_bins_on_pixel_centres_and_highest_wins():
-    points = np.array([[0.5, 0.0, 0.02], [0.5, 0.0, 0.05], [0.3, -0.4, 0.01], [0.9, 0.0, 0.01]])
-    colors = np.array([[10, 10, 10], [200, 0, 0], [0, 255, 0], [1, 2, 3]], dtype=np.uint8)
+def test_projection_bins_by_floor_and_highest_wins():
+    """Cell (u, v) holds x in [x0 + v s, x0 + (v + 1) s) (the reference's floor), its highest point gives
+    height and colour; pix_to_xyz gives the cell's lower corner, which xyz_to_pix rounds back."""
+    s = hm.PIXEL_SIZE
+    x, y, _ = hm.pix_to_xyz((120, 80), 0.0)
+    points = np.array(
+        [
+            [x + 0.7 * s, y + 0.7 * s, 0.02],
+            [x + 0.2 * s, y + 0.9 * s, 0.05],  # same cell, higher: wins
+            [x - 0.1 * s, y + 0.5 * s, 0.04],  # just below x: the previous column
+            [0.9, 0.0, 0.01],  # out of bounds
+            [x + 0.5 * s, y + 0.5 * s, 0.28],  # at the upper z bound: out
+        ]
+    )
+    colors = np.array([[10, 10, 10], [200, 0, 0], [0, 255, 0], [1, 2, 3], [4, 5, 6]], dtype=np.uint8)
     height, color, seen = hm.project_to_heightmap(points, colors)
-    u, v = hm.xyz_to_pix((0.5, 0.0))
-    assert height[u, v] == pytest.approx(0.05)
-    assert tuple(color[u, v]) == (200, 0, 0)
-    u2, v2 = hm.xyz_to_pix((0.3, -0.4))
-    assert height[u2, v2] == pytest.approx(0.01) and seen[u2, v2]
-    assert seen.sum() == 2  # the point at x=0.9 is out of bounds
+    assert height[120, 80] == pytest.approx(0.05) and tuple(color[120, 80]) == (200, 0, 0)
+    assert height[120, 79] == pytest.approx(0.04) and tuple(color[120, 79]) == (0, 255, 0)
+    assert seen.sum() == 2
+    # Labelling rounds: a point 0.7 cells past the corner is labelled with the next cell.
+    assert hm.xyz_to_pix((x + 0.7 * s, y + 0.7 * s)) == (121, 81)
+    assert hm.xyz_to_pix((x, y)) == (120, 80)
 
 
-def test_fusion_max_height_mean_colour():
+def test_fusion_max_height_mean_of_non_black_colours():
     shape = (320, 160)
     h1, h2 = np.zeros(shape, np.float32), np.zeros(shape, np.float32)
     h1[5, 5], h2[5, 5] = 0.02, 0.03
     c1, c2 = np.zeros(shape + (3,), np.uint8), np.zeros(shape + (3,), np.uint8)
-    c1[5, 5], c2[5, 5] = (100, 0, 0), (200, 0, 0)
+    c1[5, 5], c2[5, 5] = (100, 0, 0), (201, 0, 0)
     c1[6, 6] = (50, 50, 50)
-    s1, s2 = np.zeros(shape, bool), np.zeros(shape, bool)
-    s1[5, 5] = s2[5, 5] = s1[6, 6] = True
-    color, height = hm.fuse_heightmaps([h1, h2], [c1, c2], [s1, s2])
-    assert height[5, 5] == pytest.approx(0.03)
-    assert tuple(color[5, 5]) == (150, 0, 0)
+    h1[7, 7], h2[7, 7] = 0.04, 0.01
+    c1[7, 7], c2[7, 7] = (0, 0, 0), (90, 30, 10)  # seen black by camera 1
+    color, height = hm.fuse_heightmaps([h1, h2], [c1, c2])
+    assert height[5, 5] == pytest.approx(0.03) and height[7, 7] == pytest.approx(0.04)
+    assert tuple(color[5, 5]) == (150, 0, 0)  # 150.5 rounds half to even
     assert tuple(color[6, 6]) == (50, 50, 50)  # seen by one camera only: not averaged with black
+    assert tuple(color[7, 7]) == (90, 30, 10)  # a black colour does not count either
+    assert not color[8, 8].any() and height[8, 8] == 0
 
 
 def test_pointcloud_backprojection():
