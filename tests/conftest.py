@@ -14,6 +14,12 @@ from cliport.env.transforms import yaw_to_quat
 
 def pytest_addoption(parser: pytest.Parser) -> None:
     parser.addoption("--runslow", action="store_true", default=False, help="also run tests marked slow")
+    parser.addoption(
+        "--reference-dir",
+        default=None,
+        help="folder of the reference CLIPort code used as a test oracle (default: $CLIPORT_REFERENCE_DIR); "
+        "tests that compare with it are skipped without one",
+    )
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
@@ -29,6 +35,19 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
                 cuda = torch.cuda.is_available()
             if not cuda:
                 item.add_marker(pytest.mark.skip(reason="gpu: no CUDA device"))
+
+
+@pytest.fixture(scope="session")
+def reference_dir(pytestconfig: pytest.Config) -> str:
+    """Absolute path of the reference CLIPort folder (``--reference-dir`` or ``$CLIPORT_REFERENCE_DIR``),
+    or a skip saying why there is none. Never import from it here: run it in a subprocess (both
+    packages are named ``cliport``)."""
+    path = pytestconfig.getoption("--reference-dir") or os.environ.get("CLIPORT_REFERENCE_DIR")
+    if not path:
+        pytest.skip("no reference CLIPort: set CLIPORT_REFERENCE_DIR or pass --reference-dir")
+    if not os.path.isfile(os.path.join(path, "cliport", "utils", "utils.py")):
+        pytest.skip(f"reference CLIPort folder {path} does not hold cliport/utils/utils.py")
+    return os.path.abspath(path)
 
 
 def _synthetic_dataset(root: str, n_episodes: int = 3) -> str:
