@@ -214,7 +214,7 @@ def convert_episode(episode: SourceEpisode, bounds: np.ndarray = hm.BOUNDS) -> t
     return steps, notes
 
 
-def _kept(path: str, source: str) -> bool:
+def kept_import(path: str, source: str) -> bool:
     """True when ``path`` is a valid episode file imported from ``source`` (a resumed import keeps it)."""
     if not os.path.exists(path):
         return False
@@ -269,7 +269,7 @@ def import_demos(
         seed = seeds[episode.index]
         path = episode_path(out, seed)
         summary["seeds"].append(seed)
-        if _kept(path, episode.folder):
+        if kept_import(path, episode.folder):
             summary["skipped"] += 1
             continue
         steps, notes = convert_episode(episode, bounds)
