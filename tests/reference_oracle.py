@@ -20,11 +20,6 @@ strings and numbers only.
     python tests/reference_oracle.py --reference-dir R clip CKPT REQUEST OUT
         The pick net's CLIP (fp32): token ids, sentence features and the prepool trunk levels of REQUEST's
         "texts" and "rgb" ((N, 3, H, W) float in [0, 1]).
-    python tests/reference_oracle.py --reference-dir R geometry REQUEST OUT
-        The reference's utils on REQUEST's data: get_fused_heightmap of "color" (V, H, W, 3) uint8 and
-        "depth" (V, H, W) float32 seen by "cameras" (intrinsics, position, rotation per view), pix_to_xyz
-        of "pixels" on "height", xyz_to_pix of "positions", and eulerXYZ_to_quatXYZW / quatXYZW_to_eulerXYZ
-        of the yaws "yaws".
 """
 
 from __future__ import annotations
@@ -223,39 +218,6 @@ def cmd_clip(ref: types.ModuleType, args: argparse.Namespace) -> None:
     torch.save({"tokens": tokens, "sentences": sentences.float(), "levels": [x.float() for x in levels[-5:]]}, args.out)
 
 
-def cmd_geometry(ref: types.ModuleType, args: argparse.Namespace) -> None:
-    import numpy as np
-    import torch
-
-    from cliport.utils import utils
-
-    request = torch.load(args.request, weights_only=True)
-    bounds = np.array([[0.25, 0.75], [-0.5, 0.5], [0, 0.28]])
-    pix_size = 0.003125
-    configs = [
-        {"intrinsics": tuple(c["intrinsics"]), "position": tuple(c["position"]), "rotation": tuple(c["rotation"])}
-        for c in request["cameras"]
-    ]
-    obs = {"color": request["color"].numpy(), "depth": request["depth"].numpy()}
-    cmap, hmap = utils.get_fused_heightmap(obs, configs, bounds, pix_size)
-    height = request["height"].numpy()
-    xyz = [utils.pix_to_xyz(tuple(int(c) for c in pix), height, bounds, pix_size) for pix in request["pixels"]]
-    pix = [utils.xyz_to_pix(tuple(float(c) for c in pos), bounds, pix_size) for pos in request["positions"]]
-    quats = [utils.eulerXYZ_to_quatXYZW((0.0, 0.0, float(yaw))) for yaw in request["yaws"]]
-    eulers = [utils.quatXYZW_to_eulerXYZ(q) for q in quats]
-    torch.save(
-        {
-            "color": torch.from_numpy(cmap),
-            "height": torch.from_numpy(hmap),
-            "xyz": torch.tensor(xyz, dtype=torch.float64),
-            "pix": torch.tensor(pix),
-            "quat": torch.tensor(quats, dtype=torch.float64),
-            "euler": torch.tensor(eulers, dtype=torch.float64),
-        },
-        args.out,
-    )
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--reference-dir", required=True)
@@ -265,9 +227,6 @@ def main() -> None:
     weights.add_argument("out")
     weights.add_argument("--seed", type=int, default=0)
     weights.add_argument("--perturb-clip-bn", action="store_true")
-    geometry = sub.add_parser("geometry")
-    geometry.add_argument("request")
-    geometry.add_argument("out")
     for name in ("act", "clip"):
         p = sub.add_parser(name)
         p.add_argument("agent")
@@ -279,7 +238,7 @@ def main() -> None:
     args = parser.parse_args()
     os.environ.setdefault("CUDA_VISIBLE_DEVICES", "")
     ref = _import_reference(args.reference_dir)
-    {"weights": cmd_weights, "act": cmd_act, "clip": cmd_clip, "geometry": cmd_geometry}[args.command](ref, args)
+    {"weights": cmd_weights, "act": cmd_act, "clip": cmd_clip}[args.command](ref, args)
 
 
 if __name__ == "__main__":

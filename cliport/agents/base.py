@@ -188,9 +188,9 @@ class PickPlaceAgent(nn.Module):
             v = torch.round((pose[:, 0] - BOUNDS[0, 0]) / PIXEL_SIZE).clamp(0, hw[1] - 1)
             return torch.stack([u, v], dim=1).long()
 
-        def yaw(pose: torch.Tensor) -> torch.Tensor:
+        def yaw(pose: torch.Tensor) -> torch.Tensor:  # quat_to_yaw: the reference's labels' z angle
             x, y, z, w = pose[:, 3], pose[:, 4], pose[:, 5], pose[:, 6]
-            return torch.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+            return torch.atan2(2 * (x * y + w * z), 1 - 2 * (x * x + z * z))
 
         return pixels(pose0), pixels(pose1), self.place.rotation_bin(yaw(pose1) - yaw(pose0))
 

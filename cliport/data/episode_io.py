@@ -178,25 +178,3 @@ def load_episode(path: str) -> EpisodeData:
     if len(data) == 0:
         raise EpisodeFileError(f"corrupt episode file {path}: no steps")
     return data
-
-
-def kept_import(path: str, source: str, error: type[Exception] = EpisodeFileError) -> bool:
-    """Whether ``path`` already is a valid episode file imported from ``source`` (a resumed import keeps it).
-
-    False when it is missing or damaged (import it again); ``error`` naming both when it holds an episode of
-    another origin (a simulated demo or another source), which an import must not overwrite.
-    """
-    if not os.path.exists(path):
-        return False
-    try:
-        check_episode_file(path)
-        meta = read_meta(path)
-    except EpisodeFileError:
-        return False
-    if not meta.get("imported") or meta.get("source") != source:
-        raise error(
-            f"{path} already holds an episode that is not an import of {source} "
-            f"(source {meta.get('source', 'simulated')!r}): use another --data-dir or remove it"
-        )
-    return True
-

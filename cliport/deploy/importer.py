@@ -42,7 +42,14 @@ from typing import Any
 
 import numpy as np
 
-from cliport.data.episode_io import dataset_dir, episode_path, kept_import, save_episode
+from cliport.data.episode_io import (
+    EpisodeFileError,
+    check_episode_file,
+    dataset_dir,
+    episode_path,
+    read_meta,
+    save_episode,
+)
 from cliport.data.seeds import episode_seeds
 from cliport.deploy.scene import SceneError, check_views, fuse_scene, load_cameras, read_color, read_depth
 from cliport.env import heightmap as hm
@@ -207,6 +214,23 @@ def convert_episode(episode: SourceEpisode, bounds: np.ndarray = hm.BOUNDS) -> t
     return steps, notes
 
 
+def kept_import(path: str, source: str) -> bool:
+    """True when ``path`` is a valid episode file imported from ``source`` (a resumed import keeps it)."""
+    if not os.path.exists(path):
+        return False
+    try:
+        check_episode_file(path)
+        meta = read_meta(path)
+    except EpisodeFileError:
+        return False  # truncated or damaged: import it again
+    if not meta.get("imported") or meta.get("source") != source:
+        raise DemoImportError(
+            f"{path} already holds an episode that is not an import of {source} "
+            f"(source {meta.get('source', 'simulated')!r}): use another --data-dir or remove it"
+        )
+    return True
+
+
 def import_demos(
     src: str,
     task: str,
@@ -245,7 +269,7 @@ def import_demos(
         seed = seeds[episode.index]
         path = episode_path(out, seed)
         summary["seeds"].append(seed)
-        if kept_import(path, episode.folder, DemoImportError):
+        if kept_import(path, episode.folder):
             summary["skipped"] += 1
             continue
         steps, notes = convert_episode(episode, bounds)

@@ -8,7 +8,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from cliport.env.bullet import p
-from cliport.env.transforms import euler_to_quat, quat_to_matrix
+from cliport.env.transforms import quat_to_matrix
 
 
 @dataclass(frozen=True)
@@ -50,22 +50,32 @@ _D415_K = (450.0, 0.0, 320.0, 0.0, 450.0, 240.0, 0.0, 0.0, 1.0)
 
 
 def realsense_d415() -> list[CameraConfig]:
-    """The three Ravens RealSense-D415-like views: front, left, right (480 x 640)."""
+    """The three Ravens RealSense-D415-like views: front, left, right (480 x 640).
+
+    The reference CLIPort's ``RealSenseD415.CONFIG``: the same image size, intrinsics, positions and
+    zrange, and rotations from pybullet's ``getQuaternionFromEuler`` of the same angles, as the reference
+    computes them (``euler_to_quat`` can differ from it in the last bit).
+    """
     poses = [
         ((1.0, 0.0, 0.75), (math.pi / 4, math.pi, -math.pi / 2)),
         ((0.0, 0.5, 0.75), (math.pi / 4.5, math.pi, math.pi / 4)),
         ((0.0, -0.5, 0.75), (math.pi / 4.5, math.pi, 3 * math.pi / 4)),
     ]
-    return [CameraConfig((480, 640), _D415_K, pos, euler_to_quat(*rpy)) for pos, rpy in poses]
+    return [CameraConfig((480, 640), _D415_K, pos, _bullet_quat(rpy)) for pos, rpy in poses]
+
+
+def _bullet_quat(rpy: tuple[float, float, float]) -> tuple[float, float, float, float]:
+    return tuple(float(c) for c in p.getQuaternionFromEuler(rpy))  # type: ignore[return-value]
 
 
 def oracle_camera() -> CameraConfig:
-    """Near-orthographic camera straight above the workspace, for task code (not for agents)."""
+    """Near-orthographic camera straight above the workspace, for task code (not for agents): the
+    reference's ``Oracle.CONFIG``."""
     return CameraConfig(
         image_size=(480, 640),
         intrinsics=(63e4, 0.0, 320.0, 0.0, 63e4, 240.0, 0.0, 0.0, 1.0),
         position=(0.5, 0.0, 1000.0),
-        rotation=euler_to_quat(0.0, math.pi, -math.pi / 2),
+        rotation=_bullet_quat((0.0, math.pi, -math.pi / 2)),
         zrange=(999.7, 1001.0),
     )
 

@@ -10,8 +10,12 @@ Pose = tuple[tuple[float, float, float], tuple[float, float, float, float]]
 
 
 def quat_to_matrix(q: np.ndarray | tuple[float, ...]) -> np.ndarray:
-    """3x3 rotation matrix of a unit quaternion (x, y, z, w), with Bullet's arithmetic
-    (``getMatrixFromQuaternion``, which the reference's fusion uses), so that fused maps agree bit for bit."""
+    """3x3 rotation matrix of a quaternion (x, y, z, w) (normalised here).
+
+    Computed as Bullet's ``btMatrix3x3::setRotation`` computes it, so it equals pybullet's
+    ``getMatrixFromQuaternion`` bit for bit: the reference CLIPort moves camera points to the world with
+    that matrix, and the fused maps must match its maps exactly.
+    """
     x, y, z, w = (float(c) for c in q)
     n = x * x + y * y + z * z + w * w
     s = 2.0 / n if n > 0 else 0.0
@@ -49,7 +53,8 @@ def matrix_to_quat(m: np.ndarray) -> tuple[float, float, float, float]:
 
 
 def euler_to_quat(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
-    """Quaternion (x, y, z, w) of extrinsic XYZ Euler angles (PyBullet's convention)."""
+    """Quaternion (x, y, z, w) of extrinsic XYZ Euler angles (PyBullet's ``getQuaternionFromEuler``
+    convention; equal to it to the last bit or two)."""
     cr, sr = math.cos(roll / 2), math.sin(roll / 2)
     cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
     cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
@@ -62,14 +67,20 @@ def euler_to_quat(roll: float, pitch: float, yaw: float) -> tuple[float, float, 
 
 
 def yaw_to_quat(yaw: float) -> tuple[float, float, float, float]:
-    """Quaternion (x, y, z, w) of a rotation by ``yaw`` radians about world +z."""
+    """Quaternion (x, y, z, w) of a rotation by ``yaw`` radians about world +z: exactly the reference
+    CLIPort's ``eulerXYZ_to_quatXYZW((0, 0, yaw))`` (no sign flip: (0, 0, sin(yaw / 2), cos(yaw / 2)))."""
     return (0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2))
 
 
 def quat_to_yaw(q: np.ndarray | tuple[float, ...]) -> float:
-    """Rotation about +z (radians, in (-pi, pi]) of a quaternion (x, y, z, w)."""
+    """Rotation about +z (radians, in (-pi, pi]) of a quaternion (x, y, z, w).
+
+    The z angle of the reference CLIPort's ``quatXYZW_to_eulerXYZ`` (Euler angles about the static z,
+    then x, then y axes: R = Ry Rx Rz), which its tasks and training labels read: for a rotation about
+    z alone it is that rotation's angle; for a tilted one it is ``atan2(R[1, 0], R[1, 1])``.
+    """
     x, y, z, w = (float(c) for c in q)
-    return math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+    return math.atan2(2 * (x * y + w * z), 1 - 2 * (x * x + z * z))
 
 
 def at_height(pose: Pose, z: float = 0.0) -> Pose:

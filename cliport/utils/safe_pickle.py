@@ -12,6 +12,7 @@ archive's raw storages itself (``torch.load`` is never called on such a file).
 from __future__ import annotations
 
 import _compat_pickle
+import builtins
 import io
 import pickle
 import zipfile
@@ -25,7 +26,11 @@ from cliport.errors import UserError
 
 
 class UnsafePickleError(UserError, ValueError):
-    """The pickle names a global that is neither plain data nor a known data-only class."""
+    """The pickle names a global that is neither plain data nor a known data-only class (``global_name``)."""
+
+    def __init__(self, message: str, global_name: str | None = None) -> None:
+        super().__init__(message)
+        self.global_name = global_name
 
 
 class UnreadablePickleError(UserError, ValueError):
@@ -66,29 +71,35 @@ def _inert_class(name: str) -> type[InertObject]:
     return type("Inert", (InertObject,), {"global_name": name, "__module__": __name__})
 
 
-#: Real objects any restricted pickle may use: plain containers and the constructors pickle itself emits.
+def _latin1_encode(text: str, encoding: str = "utf-8") -> bytes:
+    """``_codecs.encode`` as pickles of protocols 0-2 use it for bytes (latin-1 only)."""
+    if encoding not in ("latin1", "latin-1"):
+        raise UnsafePickleError(f"a pickle asks _codecs.encode for encoding {encoding!r}; only latin-1 is used")
+    return text.encode("latin1")
+
+
+#: Real objects any restricted pickle may use: builtin types and containers, and the constructors pickle
+#: itself emits (protocols 0-2 name the builtins module ``__builtin__``; find_class maps it).
 PLAIN_GLOBALS: dict[str, Any] = {
+    **{
+        f"builtins.{name}": getattr(builtins, name)
+        for name in ("list", "dict", "tuple", "set", "frozenset", "bytes", "bytearray", "str", "int", "float",
+                     "complex", "bool", "slice", "object")
+    },  # fmt: skip
     "collections.OrderedDict": OrderedDict,
-    "builtins.set": set,
-    "builtins.frozenset": frozenset,
-    "builtins.complex": complex,
-    "builtins.slice": slice,
-    "builtins.bytearray": bytearray,
-    "builtins.object": object,
-    "_codecs.encode": lambda text, encoding="latin1": text.encode(encoding),  # how protocol 2 stores bytes
+    "_codecs.encode": _latin1_encode,
 }
+
 
 def _numpy_globals() -> dict[str, Any]:
     import numpy as np
 
-    try:
-        from numpy._core import multiarray
-    except ImportError:  # numpy 1.x
-        from numpy.core import multiarray  # type: ignore[no-redef]
+    core = getattr(np, "_core", None) or np.core
     table: dict[str, Any] = {"numpy.ndarray": np.ndarray, "numpy.dtype": np.dtype}
-    for module in ("numpy.core.multiarray", "numpy._core.multiarray"):  # numpy 1.x and 2.x names
-        table[f"{module}._reconstruct"] = multiarray._reconstruct
-        table[f"{module}.scalar"] = multiarray.scalar
+    for package in ("numpy.core", "numpy._core"):  # NumPy 1 and 2 names of the same functions
+        table[f"{package}.multiarray._reconstruct"] = core.multiarray._reconstruct
+        table[f"{package}.multiarray.scalar"] = core.multiarray.scalar
+        table[f"{package}.numeric._frombuffer"] = core.numeric._frombuffer
     return table
 
 
@@ -142,7 +153,8 @@ class RestrictedUnpickler(pickle.Unpickler):
             return _inert_class(full)
         raise UnsafePickleError(
             f"{self.source} names {full}, which is not data (it could run code when loaded): refused, "
-            "nothing from the file was run"
+            "nothing from the file was run",
+            full,
         )
 
     def persistent_load(self, pid: Any) -> Any:

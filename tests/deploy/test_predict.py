@@ -49,7 +49,7 @@ def test_float_depth_files_fuse_identically_and_give_the_same_action(
     assert np.array_equal(np.load(stem + "-height.npy"), obs["height"])
     assert result["pick"]["pixel"] == list(sim_action["pick_pix"])
     assert result["place"]["pixel"] == list(sim_action["place_pix"])
-    assert result["place"]["rotation_bin"] == sim_action["place_bin"]
+    assert result["place"]["rotation_bin"] == round(sim_action["place_rot"] / (2 * np.pi / 4)) % 4
     assert result["pick"]["xyz"] == pytest.approx(list(sim_action["pose0"][0]), abs=1e-6)
     assert result["place"]["quat"] == pytest.approx(list(sim_action["pose1"][1]), abs=1e-6)
     assert result["instruction"] == lang and result["checkpoint"] == RunDir(tiny_run).checkpoint(1)
@@ -94,8 +94,9 @@ def test_python_api_matches_the_simulator(sim_scene, sim_action, tiny_run):
     moved = Predictor(tiny_run, checkpoint="1", device="cpu", bounds=[0.35, 0.85, -0.4, 0.6, 0.0, 0.28])
     cams = [dict(c.__dict__, position=(c.position[0] + 0.1, c.position[1] + 0.1, c.position[2])) for c in cameras]
     shifted = moved.predict(images, cams, lang)
-    # Equal but for points on cell borders, which float32 rounding of the moved points can send across.
-    differs = shifted.obs["height"] != obs["height"]
-    assert differs.mean() < 0.005, differs.mean()
+    # The same map up to boundary points: binning floors world points rounded to float32 (the reference's
+    # rule), so a frame moved by 0.1 m puts a few of them (0.3% of cells here) in the neighbouring cell.
+    assert np.mean(shifted.obs["height"] != obs["height"]) < 0.01
+    assert np.mean((shifted.obs["color"] != obs["color"]).any(axis=-1)) < 0.01
     assert shifted.pick["pixel"] == prediction.pick["pixel"]
     assert shifted.pick["xyz"][:2] == pytest.approx([c + 0.1 for c in prediction.pick["xyz"][:2]], abs=1e-6)

@@ -15,18 +15,27 @@ def test_shape_and_roundtrip():
 
 
 def test_projection_bins_by_floor_and_highest_wins():
+    """Cell (u, v) holds x in [x0 + v s, x0 + (v + 1) s) (the reference's floor), its highest point gives
+    height and colour; pix_to_xyz gives the cell's lower corner, which xyz_to_pix rounds back."""
     s = hm.PIXEL_SIZE
-    points = np.array([[0.5, 0.0, 0.02], [0.5, 0.0, 0.05], [0.3 + s / 2, -0.4 + s / 2, 0.01], [0.9, 0.0, 0.01],
-                       [0.25 + 10.9 * s, -0.5 + 20.9 * s, 0.03], [0.75, 0.0, 0.01]])  # fmt: skip
-    colors = np.array([[10, 10, 10], [200, 0, 0], [0, 255, 0], [1, 2, 3], [7, 7, 7], [9, 9, 9]], dtype=np.uint8)
+    x, y, _ = hm.pix_to_xyz((120, 80), 0.0)
+    points = np.array(
+        [
+            [x + 0.7 * s, y + 0.7 * s, 0.02],
+            [x + 0.2 * s, y + 0.9 * s, 0.05],  # same cell, higher: wins
+            [x - 0.1 * s, y + 0.5 * s, 0.04],  # just below x: the previous column
+            [0.9, 0.0, 0.01],  # out of bounds
+            [x + 0.5 * s, y + 0.5 * s, 0.28],  # at the upper z bound: out
+        ]
+    )
+    colors = np.array([[10, 10, 10], [200, 0, 0], [0, 255, 0], [1, 2, 3], [4, 5, 6]], dtype=np.uint8)
     height, color, seen = hm.project_to_heightmap(points, colors)
-    u, v = hm.xyz_to_pix((0.5, 0.0))
-    assert height[u, v] == pytest.approx(0.05)
-    assert tuple(color[u, v]) == (200, 0, 0)
-    assert height[32, 16] == pytest.approx(0.01) and seen[32, 16]  # (0.3, -0.4) is the corner of cell (32, 16)
-    # 0.9 of a cell past a corner is still that cell (the reference floors; rounding would move it on).
-    assert seen[20, 10] and tuple(color[20, 10]) == (7, 7, 7) and not seen[21, 11]
-    assert seen.sum() == 3  # x = 0.9 is out of bounds, and so is x = 0.75 (the upper bound is open)
+    assert height[120, 80] == pytest.approx(0.05) and tuple(color[120, 80]) == (200, 0, 0)
+    assert height[120, 79] == pytest.approx(0.04) and tuple(color[120, 79]) == (0, 255, 0)
+    assert seen.sum() == 2
+    # Labelling rounds: a point 0.7 cells past the corner is labelled with the next cell.
+    assert hm.xyz_to_pix((x + 0.7 * s, y + 0.7 * s)) == (121, 81)
+    assert hm.xyz_to_pix((x, y)) == (120, 80)
 
 
 def test_fusion_max_height_mean_of_non_black_colours():
@@ -36,12 +45,14 @@ def test_fusion_max_height_mean_of_non_black_colours():
     c1, c2 = np.zeros(shape + (3,), np.uint8), np.zeros(shape + (3,), np.uint8)
     c1[5, 5], c2[5, 5] = (100, 0, 0), (201, 0, 0)
     c1[6, 6] = (50, 50, 50)
-    c1[7, 7], c2[7, 7], h2[7, 7] = (90, 90, 90), (0, 0, 0), 0.01  # the second camera saw black there
+    h1[7, 7], h2[7, 7] = 0.04, 0.01
+    c1[7, 7], c2[7, 7] = (0, 0, 0), (90, 30, 10)  # seen black by camera 1
     color, height = hm.fuse_heightmaps([h1, h2], [c1, c2])
-    assert height[5, 5] == pytest.approx(0.03) and height[7, 7] == pytest.approx(0.01)
-    assert tuple(color[5, 5]) == (150, 0, 0)  # 150.5 rounds half to even, as numpy does
+    assert height[5, 5] == pytest.approx(0.03) and height[7, 7] == pytest.approx(0.04)
+    assert tuple(color[5, 5]) == (150, 0, 0)  # 150.5 rounds half to even
     assert tuple(color[6, 6]) == (50, 50, 50)  # seen by one camera only: not averaged with black
-    assert tuple(color[7, 7]) == (90, 90, 90)  # a black colour counts as no view of the cell
+    assert tuple(color[7, 7]) == (90, 30, 10)  # a black colour does not count either
+    assert not color[8, 8].any() and height[8, 8] == 0
 
 
 def test_pointcloud_backprojection():

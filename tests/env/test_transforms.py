@@ -27,3 +27,26 @@ def test_multiply_invert():
     assert np.allclose(tf.apply(a, b[0]), ab[0])
     assert tf.quat_to_yaw(tf.multiply(((0, 0, 0), tf.yaw_to_quat(0.5)), b)[1]) == pytest.approx(1.2)
     assert tf.apply(((0, 0, 0), tf.yaw_to_quat(math.pi / 2)), (1, 0, 0)) == pytest.approx([0, 1, 0])
+
+
+def test_quat_to_matrix_is_pybullets_bit_for_bit():
+    """The camera-to-world matrix of the fusion is the one the reference gets from pybullet."""
+    import pybullet as p
+
+    rng = np.random.default_rng(3)
+    for _ in range(2000):
+        q = rng.normal(size=4)
+        q /= np.linalg.norm(q)
+        np.testing.assert_array_equal(tf.quat_to_matrix(q), np.array(p.getMatrixFromQuaternion(q)).reshape(3, 3))
+
+
+def test_quat_to_yaw_is_the_reference_z_angle_of_tilted_rotations():
+    """quat_to_yaw reads the z angle of R = Ry(b) Rx(a) Rz(yaw) (the reference's quatXYZW_to_eulerXYZ),
+    not the yaw of R = Rz Ry Rx: for a tilted object the two differ."""
+    rng = np.random.default_rng(4)
+    for _ in range(200):
+        a, b, yaw = rng.normal(0, 0.3), rng.normal(0, 0.3), rng.uniform(-math.pi, math.pi)
+        rx = tf.quat_to_matrix((math.sin(a / 2), 0, 0, math.cos(a / 2)))
+        ry = tf.quat_to_matrix((0, math.sin(b / 2), 0, math.cos(b / 2)))
+        q = tf.matrix_to_quat(ry @ rx @ tf.quat_to_matrix(tf.yaw_to_quat(yaw)))
+        assert math.remainder(tf.quat_to_yaw(q) - yaw, 2 * math.pi) == pytest.approx(0, abs=1e-9)
