@@ -106,9 +106,12 @@ def _assert_close_to_peak(ours: torch.Tensor, theirs: torch.Tensor, what: str) -
 def test_agent_computes_what_the_reference_computes(agent: str, reference_runs, observation) -> None:
     run = reference_runs[agent]
     ref = run["act"]
-    # The heatmaps are far from flat, so equal argmaxes mean something.
-    assert float(ref["pick_logits"].max() - ref["pick_logits"].min()) > 0.5
-    assert float(ref["place_logits"].max() - ref["place_logits"].min()) > 10
+    # The heatmaps are far from flat (each spans a good part of its peak, 10^4 times the tolerance below),
+    # so equal argmaxes mean something.
+    for name in ("pick_logits", "place_logits"):
+        logits = ref[name]
+        spread, peak = float(logits.max() - logits.min()), float(logits.abs().max())
+        assert spread > max(0.5, 0.25 * peak), f"{name} span only {spread:.3g} (peak {peak:.3g})"
 
     ours = _act_recording(_our_agent(agent, run), observation, LANG if agent != "transporter_only" else None)
     errors = {
