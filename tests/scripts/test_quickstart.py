@@ -1,0 +1,47 @@
+"""scripts/quickstart.py: a tiny run goes through all four phases and resumes; bad settings are one line.
+(With its defaults it learns: measured in the README; notebooks/quickstart.ipynb's slow test checks that.)"""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "quickstart.py"
+TINY = ["--demos", "1", "--steps", "2", "--episodes", "1", "--width", "0.125", "--camera-scale", "0.5"]
+
+
+def _run(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, str(SCRIPT), *args], capture_output=True, text=True, timeout=900)
+
+
+def _one_error_line(out: subprocess.CompletedProcess) -> str:
+    err = out.stderr.strip().splitlines()
+    assert out.returncode == 2 and len(err) == 1 and err[0].startswith("error: "), out.stderr
+    return err[0]
+
+
+def test_a_tiny_run_goes_through_every_phase_and_resumes(tmp_path):
+    out = _run("--out", str(tmp_path), *TINY)
+    assert out.returncode == 0, out.stderr
+    for phase in ("1/4 demonstrations", "2/4 training transporter_only on cpu", "3/4 evaluating", "4/4 heatmaps"):
+        assert phase in out.stdout
+    assert "1 place rotation(s)" in out.stdout  # place-red-in-green's bowls are round
+    summary = json.loads((tmp_path / "results.json").read_text())
+    assert summary["training"]["n_rotations"] == 1 and summary["test"]["n_episodes"] == 1
+    assert summary["solved"] in (0, 1) and summary["gif_episode"]["solved"] == bool(summary["solved"])
+    assert Path(summary["video"]).is_file() and all(Path(p).is_file() for p in summary["heatmaps"])
+    assert f"The agent solved {summary['solved']} of 1 test episodes" in out.stdout
+
+    again = _run("--out", str(tmp_path), *TINY)  # demos and training are kept
+    assert again.returncode == 0, again.stderr
+    assert json.loads((tmp_path / "results.json").read_text())["demos"]["skipped_existing"] == 1
+    assert "train transporter_only" not in again.stderr  # no training progress bar: nothing left to train
+
+    changed = _one_error_line(_run("--out", str(tmp_path), *TINY, "--seed", "3"))
+    assert "holds a quickstart run with other settings (seed)" in changed and "--out" in changed
+
+
+def test_bad_settings_are_one_line(tmp_path):
+    assert "--steps must be at least 1, got 0" in _one_error_line(_run("--out", str(tmp_path), "--steps", "0"))
+    assert "unknown task 'nope'" in _one_error_line(_run("--out", str(tmp_path), "--task", "nope"))
+    assert not any(tmp_path.iterdir())
