@@ -1,6 +1,6 @@
 """cliport-convert without the reference code: checkpoints written under the reference's names (from our own
 agents, whose nets are the reference's), every kind of bad file, and the converted run used like a native
-one. tests/deploy/test_convert_reference.py converts checkpoints the reference code itself wrote."""
+one. tests/train/test_convert_reference.py converts checkpoints the reference code itself wrote."""
 
 from __future__ import annotations
 
