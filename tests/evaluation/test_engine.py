@@ -151,6 +151,7 @@ def test_ctrl_c_during_hung_workers_stops_everything_within_seconds(tmp_path, mo
     """Both workers stuck in what looks like a native call (SIGTERM blocked) and no step timeout: a Ctrl-C
     still ends the run, and closing kills both in parallel (about SHUTDOWN_GRACE + 3 s, not 10 s each)."""
     import _thread
+    import signal
     import threading
     import time
 
@@ -158,6 +159,9 @@ def test_ctrl_c_during_hung_workers_stops_everything_within_seconds(tmp_path, mo
     engine = EvalEngine(TASK, "val", EnvConfig.defaults(camera_scale=0.5), workers=2, progress=False, step_timeout=None)
     engine.start()
     processes = [w.process for w in engine.workers]
+    # Ctrl-C as from a terminal, whatever the runner's SIGINT disposition: a pytest started with SIGINT ignored
+    # (a script's background job) makes interrupt_main a no-op, and this run, with no step timeout, would hang.
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     timer = threading.Timer(4.0, _thread.interrupt_main)  # Ctrl-C once both episodes are stuck
     timer.start()
     start = time.monotonic()
@@ -166,6 +170,7 @@ def test_ctrl_c_during_hung_workers_stops_everything_within_seconds(tmp_path, mo
             engine.run(HeightAgent(), [1, 3])
     finally:
         timer.cancel()
+        signal.signal(signal.SIGINT, previous)
     elapsed = time.monotonic() - start
     assert (tmp_path / "hung-1").exists() and (tmp_path / "hung-3").exists()
     assert not any(p.is_alive() for p in processes) and engine.workers == []
