@@ -6,11 +6,14 @@ README, e.g. ``../shared/reference-cliport``). Inputs and outputs are ``torch.sa
 strings and numbers only.
 
     python tests/reference_oracle.py --reference-dir R weights AGENT OUT.ckpt [--seed S] [--perturb-clip-bn]
+                                                               [--act REQUEST ACT_OUT [--clip-fp16]]
         Builds the reference agent with seeded random weights, re-initialises its trainable weights so
         its heatmaps are not flat (see ``_rescale``), calibrates its CLIP's batch-norm statistics (and
         with --perturb-clip-bn gives each net's CLIP copy its own statistics, as the reference's training
         leaves them), and saves a Lightning-style checkpoint dict (``state_dict`` and Lightning's
         bookkeeping) and, beside it, OUT.clip.pt: the CLIP state dict (OpenAI's keys) of the pick net.
+        With --act, then runs ``act`` (below) with the agent it holds, whose state is the checkpoint's, in
+        the same process (building a paper-size reference agent takes 10-25 s on a CPU).
     python tests/reference_oracle.py --reference-dir R act AGENT CKPT REQUEST OUT [--clip-fp16]
         Builds the agent, loads the checkpoint's state dict and runs the reference's own act() on each
         observation of REQUEST ({"images": [(H, W, 6) float32, colour 0..255 and height x3], "lang":
@@ -119,6 +122,11 @@ def cmd_weights(ref: types.ModuleType, args: argparse.Namespace) -> None:
     if copies:
         clip_sd = {k: v.detach().float().clone() for k, v in copies[0][1].state_dict().items()}
         torch.save(clip_sd, args.out + ".clip.pt")
+    if args.act:
+        if not args.clip_fp16:
+            for _, clip in copies:
+                clip.float()
+        _act(agent, args.act[0], args.act[1])
 
 
 def _build_loaded(ref: types.ModuleType, agent_name: str, ckpt_path: str, clip_fp16: bool) -> Any:
@@ -154,12 +162,15 @@ class _RecordingFunctional(types.ModuleType):
 
 
 def cmd_act(ref: types.ModuleType, args: argparse.Namespace) -> None:
+    _act(_build_loaded(ref, args.agent, args.ckpt, args.clip_fp16), args.request, args.out)
+
+
+def _act(agent: Any, request_path: str, out: str) -> None:
     import numpy as np
     import torch
     import torch.nn.functional
 
-    agent = _build_loaded(ref, args.agent, args.ckpt, args.clip_fp16)
-    request = torch.load(args.request, weights_only=True)
+    request = torch.load(request_path, weights_only=True)
     softmax_inputs: list = []
     recorder = _RecordingFunctional(softmax_inputs)
     for name, module in list(sys.modules.items()):
@@ -197,7 +208,7 @@ def cmd_act(ref: types.ModuleType, args: argparse.Namespace) -> None:
                 "place": torch.tensor([float(x) for x in act["place"]], dtype=torch.float64),
             }
         )
-    torch.save(results, args.out)
+    torch.save(results, out)
 
 
 def cmd_clip(ref: types.ModuleType, args: argparse.Namespace) -> None:
@@ -227,6 +238,8 @@ def main() -> None:
     weights.add_argument("out")
     weights.add_argument("--seed", type=int, default=0)
     weights.add_argument("--perturb-clip-bn", action="store_true")
+    weights.add_argument("--act", nargs=2, metavar=("REQUEST", "ACT_OUT"))
+    weights.add_argument("--clip-fp16", action="store_true")
     for name in ("act", "clip"):
         p = sub.add_parser(name)
         p.add_argument("agent")

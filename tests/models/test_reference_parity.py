@@ -48,8 +48,7 @@ def reference_runs(reference_oracle, reference_image, observation, tmp_path_fact
     for agent in AGENTS:
         ref_name = reference_names.REFERENCE_AGENTS[agent][0]
         ckpt = folder / f"{agent}.ckpt"
-        reference_oracle("weights", ref_name, str(ckpt))
-        reference_oracle("act", ref_name, str(ckpt), str(request), str(folder / f"{agent}.act.pt"))
+        reference_oracle("weights", ref_name, str(ckpt), "--act", str(request), str(folder / f"{agent}.act.pt"))
         runs[agent] = {
             "ckpt": ckpt,
             "clip": Path(str(ckpt) + ".clip.pt"),
