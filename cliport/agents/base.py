@@ -157,12 +157,24 @@ class PickPlaceAgent(nn.Module):
         assert self.encoder is not None
         return self.encoder.sentence_features(list(lang))
 
-    def make_optimizer(self) -> torch.optim.Optimizer:
-        """Adam over the trainable parameters at the configured learning rate: the fused kernel on CUDA
-        (see :meth:`optimize_for_device`), the foreach one elsewhere."""
-        if self._use("fused_adam"):
-            return torch.optim.Adam(self.trainable_parameters(), lr=self.config.lr, fused=True)
-        return torch.optim.Adam(self.trainable_parameters(), lr=self.config.lr, foreach=True)
+    def make_optimizer(self, eps: float = 1e-8) -> torch.optim.Optimizer:
+        """Adam over the trainable parameters at the configured learning rate with epsilon ``eps`` (a training
+        recipe's): the fused kernel on CUDA (see :meth:`optimize_for_device`), the foreach one elsewhere.
+        Adam is per parameter, so one optimiser over every net steps as the reference's one per net does."""
+        kernel = {"fused": True} if self._use("fused_adam") else {"foreach": True}
+        return torch.optim.Adam(self.trainable_parameters(), lr=self.config.lr, eps=eps, **kernel)
+
+    def set_encoder_norm_training(self, enabled: bool) -> int:
+        """Whether training forwards run the frozen encoder's batch norms in training mode (each sample's own
+        statistics; running statistics updated as the reference's batch-1 steps would), as the reference
+        CLIPort's ``attention.train()`` does. Only nets that keep their own statistics (``per_net_clip_stats``)
+        can: the shared encoder's are never saved. Acting is unaffected. Returns how many nets it applies to."""
+        nets = [m for m in self.modules() if hasattr(m, "encoder_stats")]
+        applied = 0
+        for net in nets:
+            net.train_encoder_norms = enabled and net.encoder_stats is not None
+            applied += net.train_encoder_norms
+        return applied
 
     def trainable_parameters(self) -> list[nn.Parameter]:
         return [p for p in self.parameters() if p.requires_grad]
@@ -194,8 +206,13 @@ class PickPlaceAgent(nn.Module):
 
         return pixels(pose0), pixels(pose1), self.place.rotation_bin(yaw(pose1) - yaw(pose0))
 
-    def compute_loss(self, batch: dict[str, Any]) -> tuple[torch.Tensor, dict[str, float]]:
-        """Cross-entropy over all pick pixels plus over all place pixels x rotations (batch mean).
+    def compute_loss(self, batch: dict[str, Any], loss: str = "sample_ce") -> tuple[torch.Tensor, dict[str, float]]:
+        """Cross-entropy over all pick pixels plus over all place pixels x rotations, averaged over the batch.
+
+        ``loss``: ``sample_ce``, each map's cross-entropy (Ravens'); ``cell_mean``, each map's cross-entropy
+        divided by its cells, H * W for pick and R * H * W for place (the reference CLIPort's mean of
+        ``-label * log_softmax`` over the map). The info dict always reports the per-sample cross-entropies
+        (``pick_loss``, ``place_loss``, ``loss``), so that recipes compare on one scale.
 
         The targets come from the poses ``pose0``/``pose1`` (B, 7) (see :meth:`action_targets`), or are
         given directly as ``pick_pix``/``place_pix`` (B, 2) and ``place_rot`` (B,). The inputs are copied
@@ -219,19 +236,25 @@ class PickPlaceAgent(nn.Module):
         place_target = (place_rot * h + place_pix[:, 0]) * w + place_pix[:, 1]
         pick_loss = F.cross_entropy(pick_logits.flatten(1).float(), pick_target)
         place_loss = F.cross_entropy(place_logits.flatten(1).float(), place_target)
-        loss = pick_loss + place_loss
-        info = {"loss": loss.item(), "pick_loss": pick_loss.item(), "place_loss": place_loss.item()}
-        return loss, info
+        total = pick_loss + place_loss
+        info = {"loss": total.item(), "pick_loss": pick_loss.item(), "place_loss": place_loss.item()}
+        if loss == "cell_mean":
+            total = pick_loss / pick_logits[0].numel() + place_loss / place_logits[0].numel()
+        elif loss != "sample_ce":
+            raise ValueError(f"unknown loss {loss!r}; choose cell_mean or sample_ce")
+        return total, info
 
     def train_step(
         self,
         batch: dict[str, Any],
         optimizer: torch.optim.Optimizer,
         autocast: contextlib.AbstractContextManager[Any] | None = None,
+        loss: str = "sample_ce",
     ) -> dict[str, float]:
-        """One optimiser step on `batch` (see :func:`optimizer_step`); returns the loss terms."""
+        """One optimiser step on `batch` with the ``loss`` of :meth:`compute_loss` (see :func:`optimizer_step`);
+        returns the loss terms."""
         self.train()
-        return optimizer_step(self.compute_loss, batch, optimizer, autocast)
+        return optimizer_step(lambda b: self.compute_loss(b, loss), batch, optimizer, autocast)
 
     def act(self, obs: dict[str, np.ndarray], instruction: str | None = None) -> dict[str, Any]:
         """Pick and place poses for one observation (``color`` (H, W, 3) uint8, ``height`` (H, W)).

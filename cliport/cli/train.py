@@ -73,6 +73,11 @@ def config_from_args(args: argparse.Namespace, dests: list[str]):
         saved = load_run_config(given["run_dir"])
         if "agent" in given and given["agent"] != saved.agent:
             raise RunDirError(f"{given['run_dir']} is a run of agent {saved.agent!r}, not {given['agent']!r}")
+        if "recipe" in given and given["recipe"] != saved.recipe:
+            raise RunDirError(
+                f"{given['run_dir']} trains with the {saved.recipe} recipe, not {given['recipe']}: "
+                "a run keeps its recipe (start another --run-dir)"
+            )
         return TrainConfig.build(given, base=saved.to_dict())
     if not given.get("task"):
         raise ConfigError("--task is required")

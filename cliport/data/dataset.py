@@ -31,7 +31,9 @@ class DemoDataset(Dataset):
     Turning poses into training targets (pixels, rotation bins) is the agent's business.
     ``n_demos`` episodes per task are a subset chosen with ``seed`` (the same seed, the same subset).
     ``rotation_aug`` is the standard deviation (degrees) of the augmentation's rotation; 0 keeps the
-    recorded orientation and only shifts the image.
+    recorded orientation and only shifts the image. ``aug_pivot`` and ``aug_interpolation`` name the
+    rotation's pivot and the warp's interpolation (:data:`~cliport.data.augment.PIVOTS`,
+    :data:`~cliport.data.augment.INTERPOLATIONS`; a training recipe chooses them).
     """
 
     def __init__(
@@ -44,6 +46,8 @@ class DemoDataset(Dataset):
         augment: bool = True,
         cache_episodes: int = 128,
         rotation_aug: float = math.degrees(augment_ops.ANGLE_STD),
+        aug_pivot: str = "half_size",
+        aug_interpolation: str = "nearest",
     ):
         from cliport import tasks
 
@@ -53,7 +57,15 @@ class DemoDataset(Dataset):
             raise DatasetError(str(e)) from e
         if not rotation_aug >= 0:
             raise DatasetError(f"rotation_aug must be >= 0 degrees, got {rotation_aug}")
+        if aug_pivot not in augment_ops.PIVOTS:
+            raise DatasetError(f"aug_pivot must be one of {', '.join(augment_ops.PIVOTS)}, got {aug_pivot!r}")
+        if aug_interpolation not in augment_ops.INTERPOLATIONS:
+            raise DatasetError(
+                f"aug_interpolation must be one of {', '.join(augment_ops.INTERPOLATIONS)}, got {aug_interpolation!r}"
+            )
         self.augment = augment
+        self.aug_pivot = aug_pivot
+        self.aug_interpolation = aug_interpolation
         self.rotation_std = math.radians(rotation_aug)
         self.cache_episodes = cache_episodes
         self.files: list[tuple[str, str]] = []  # (task, path)
@@ -123,8 +135,10 @@ class DemoDataset(Dataset):
         pose0, pose1 = ep.pose0[t].copy(), ep.pose1[t].copy()
         if self.augment:
             pick, place = hm.xyz_to_pix(pose0[:3]), hm.xyz_to_pix(pose1[:3])
-            m = augment_ops.sample_se2(self._generator(), height.shape, [pick, place], angle_std=self.rotation_std)
-            color, height = augment_ops.warp(color, m), augment_ops.warp(height, m)
+            m = augment_ops.sample_se2(
+                self._generator(), height.shape, [pick, place], angle_std=self.rotation_std, pivot=self.aug_pivot
+            )
+            color, height = augment_ops.warp_observation(color, height, m, self.aug_interpolation)
             pose0, pose1 = augment_ops.transform_pose(m, pose0), augment_ops.transform_pose(m, pose1)
         return {
             "color": np.ascontiguousarray(color),

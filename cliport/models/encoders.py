@@ -98,16 +98,39 @@ class FrozenEncoder(nn.Module):
 
     @torch.no_grad()
     def image_features(
-        self, rgb: torch.Tensor, norm_stats: dict[str, torch.Tensor] | None = None
+        self,
+        rgb: torch.Tensor,
+        norm_stats: dict[str, torch.Tensor] | None = None,
+        batch_stats_group: int | None = None,
     ) -> list[torch.Tensor]:
         """Trunk features of RGB images with values in [0, 1] (H, W multiples of 32).
 
         (N, 3, H, W) -> five float32 maps (N, trunk_channels[i], H / s, W / s) for the strides s of
         :data:`TRUNK_STRIDES`. ``norm_stats``: batch-norm statistics to use instead of the trunk's own for
         this call (names as in :meth:`norm_stats`), e.g. one net's of a converted reference checkpoint.
+        ``batch_stats_group``: run the batch norms in training mode, each group of that many consecutive
+        images normalised by its own statistics, and update the running statistics (``norm_stats``' tensors,
+        in place) group after group, as that many reference steps of one sample each would (the reference
+        CLIPort's training steps put its CLIP copies in training mode). Weights never change.
         """
-        with self._swapped_buffers(norm_stats or {}):
-            return [f.float() for f in self._trunk(rgb.float())]
+        stats = norm_stats or {}
+        if batch_stats_group is None:
+            with self._swapped_buffers(stats):
+                return [f.float() for f in self._trunk(rgb.float())]
+        with self._swapped_buffers(stats, write_back=True), self._norms_training():
+            groups = [self._trunk(chunk) for chunk in rgb.float().split(batch_stats_group)]
+        return [torch.cat(levels).float() for levels in zip(*groups, strict=True)]
+
+    @contextlib.contextmanager
+    def _norms_training(self) -> Iterator[None]:
+        norms = [m for m in self.image_module().modules() if isinstance(m, nn.modules.batchnorm._BatchNorm)]
+        try:
+            for norm in norms:
+                norm.train(True)
+            yield
+        finally:
+            for norm in norms:
+                norm.train(False)
 
     def norm_stats(self) -> dict[str, torch.Tensor]:
         """The running means and variances of the image trunk's batch norms, by name within
@@ -119,8 +142,9 @@ class FrozenEncoder(nn.Module):
         }
 
     @contextlib.contextmanager
-    def _swapped_buffers(self, buffers: dict[str, torch.Tensor]) -> Iterator[None]:
-        # Not thread-safe: an agent runs one forward at a time (see Predictor).
+    def _swapped_buffers(self, buffers: dict[str, torch.Tensor], write_back: bool = False) -> Iterator[None]:
+        # Not thread-safe: an agent runs one forward at a time (see Predictor). With ``write_back``, values
+        # the trunk changed in a converted copy (another dtype or device) are copied back into ``buffers``.
         module = self.image_module()
         saved = []
         try:
@@ -130,11 +154,13 @@ class FrozenEncoder(nn.Module):
                 current = owner._buffers[attr]
                 if current is None:
                     raise KeyError(f"the image trunk has no buffer {name}")
-                saved.append((owner, attr, current))
+                saved.append((owner, attr, current, value))
                 owner._buffers[attr] = value.to(device=current.device, dtype=current.dtype)
             yield
         finally:
-            for owner, attr, original in saved:
+            for owner, attr, original, value in saved:
+                if write_back and owner._buffers[attr] is not value:
+                    value.copy_(owner._buffers[attr])
                 owner._buffers[attr] = original
 
     @torch.no_grad()

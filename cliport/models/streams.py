@@ -104,9 +104,12 @@ class SemanticDecoder(nn.Module):
 def encoder_features(net: TwoStreamNet | SemanticNet, x: torch.Tensor) -> list[torch.Tensor]:
     """The frozen encoder's trunk features of the RGB channels of x (N, 6, H, W), with the net's own
     batch-norm statistics when it keeps them: the reference's three CLIP copies (pick, key, query) each
-    let their statistics drift in training, and its checkpoints act with each net's own."""
+    let their statistics drift in training, and its checkpoints act with each net's own. In training mode
+    with ``train_encoder_norms`` set (the cliport recipe), the trunk's batch norms normalise each sample's
+    images (``samples_per_group``) by their own statistics and update the net's running statistics."""
     stats = net.encoder_stats.as_dict() if net.encoder_stats is not None else None
-    return net.encoder.image_features(x[:, :3], stats)
+    group = net.samples_per_group if net.training and net.train_encoder_norms else None
+    return net.encoder.image_features(x[:, :3], stats, batch_stats_group=group)
 
 
 class TwoStreamNet(nn.Module):
@@ -133,6 +136,8 @@ class TwoStreamNet(nn.Module):
             raise ValueError(f"fusion must be 'add' or 'conv', got {fusion!r}")
         self.encoder = encoder
         self.encoder_stats = NormStats(encoder.norm_stats()) if own_norm_stats else None
+        self.samples_per_group = samples_per_group
+        self.train_encoder_norms = False  # see encoder_features; set by PickPlaceAgent.set_encoder_norm_training
         self.spatial = ResNet45_10s(IN_CHANNELS, out_ch, width)
         self.semantic = SemanticDecoder(encoder, out_ch, self.spatial.lateral_widths, width, samples_per_group)
         self.fuse = nn.Conv2d(2 * out_ch, out_ch, 1, bias=False) if fusion == "conv" else None
@@ -166,6 +171,8 @@ class SemanticNet(nn.Module):
         super().__init__()
         self.encoder = encoder
         self.encoder_stats = NormStats(encoder.norm_stats()) if own_norm_stats else None
+        self.samples_per_group = samples_per_group
+        self.train_encoder_norms = False  # see encoder_features
         self.semantic = SemanticDecoder(encoder, out_ch, None, width, samples_per_group)
 
     def forward(self, x: torch.Tensor, sentence: torch.Tensor | None = None) -> torch.Tensor:

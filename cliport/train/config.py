@@ -11,6 +11,7 @@ from typing import Any
 from cliport.agents import AgentConfig, agent_class
 from cliport.env.environment import EnvConfig
 from cliport.errors import ConfigError
+from cliport.train.recipes import Recipe, get_recipe, recipe_names
 from cliport.utils.config import defaults_file, from_dict, merge, read_defaults, to_dict
 
 
@@ -43,6 +44,11 @@ class TrainConfig:
             batch); unset: the usable CPU cores, at most 8 and at most val_episodes.
         val_mode: when checkpoints are validated: beside (in a background process while training goes on),
             after (all once training ends) or auto (beside on CUDA, after on a CPU).
+        recipe: the training recipe, a table of configs/recipes.toml: cliport (the reference CLIPort's code:
+            the loss averaged over every map cell, Adam eps 1e-8, CLIP's batch norms training per net,
+            bilinear augmentation about (W/2, H/2)), ravens (Transporter Networks' code: the per-sample
+            cross-entropy, Adam eps 1e-7, nearest-neighbour augmentation about (W/2, H/2)) or legacy (this
+            project before 0.3). A run keeps its recipe when resumed.
         agent_config: the agent's own settings (its config class; defaults in configs/<agent>.toml).
         env: workcell settings of the validation episodes (defaults in configs/env.toml).
     """
@@ -69,6 +75,8 @@ class TrainConfig:
     rotation_aug: float = 60.0
     val_workers: int | None = None
     val_mode: str = "auto"
+    # Runs saved before recipes existed trained with what configs/recipes.toml calls legacy.
+    recipe: str = "legacy"
 
     @classmethod
     def build(cls, overrides: Mapping[str, Any] | None = None, base: Mapping[str, Any] | None = None) -> TrainConfig:
@@ -93,7 +101,14 @@ class TrainConfig:
             data["env"] = merge(read_defaults("env"), data.get("env", {}))
         config = from_dict(cls, data, source, nested={"agent_config": agent_cls.config_class})
         config.validate()
+        if config.training_recipe().encoder_norms == "train" and hasattr(config.agent_config, "per_net_clip_stats"):
+            # Training CLIP's batch norms needs each net's own statistics, saved with its weights.
+            config.agent_config.per_net_clip_stats = True  # type: ignore[attr-defined]
         return config
+
+    def training_recipe(self) -> Recipe:
+        """The :class:`~cliport.train.recipes.Recipe` named by ``recipe``."""
+        return get_recipe(self.recipe)
 
     @classmethod
     def from_saved(cls, data: Mapping[str, Any], overrides: Mapping[str, Any] | None = None) -> TrainConfig:
@@ -125,6 +140,8 @@ class TrainConfig:
         if self.env.renderer not in ("auto", "egl", "cpu"):
             raise ConfigError(f"renderer must be auto, egl or cpu, got {self.env.renderer!r}")
         self.agent_config.validate()
+        if self.recipe not in recipe_names():
+            raise ConfigError(f"unknown recipe {self.recipe!r}; choose one of {', '.join(recipe_names())}")
 
     def resolved_run_dir(self) -> str:
         return self.run_dir or os.path.join("runs", f"{self.task}-{self.agent}-n{self.n_demos}-s{self.seed}")

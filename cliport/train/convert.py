@@ -229,7 +229,7 @@ def _write_run(
         agent_config.update(clip_weights=clip_weights, per_net_clip_stats=True)
     config = TrainConfig.build(
         {"agent": ours, "task": task, "n_demos": n_demos, "run_dir": run_dir, "env": {"camera_scale": 1.0},
-         "agent_config": agent_config}
+         "agent_config": agent_config, "recipe": "cliport"}
     )  # fmt: skip
     agent = make_agent(ours, config.agent_config)
     if copies:
@@ -259,7 +259,8 @@ def _write_run(
     write_json(run.config, config.to_dict())
     # One file is both the scheduled checkpoint and the resume point (last.pt is a hard link to it: training
     # replaces last.pt atomically, which leaves the converted checkpoint as it is).
-    save_torch({**agent.checkpoint_payload(), "converted_from": provenance, "trainer": trainer}, run.checkpoint(step))
+    payload = {**agent.checkpoint_payload(), "recipe": "cliport", "converted_from": provenance, "trainer": trainer}
+    save_torch(payload, run.checkpoint(step))
     try:
         os.link(run.checkpoint(step), run.checkpoint("last"))
     except OSError:

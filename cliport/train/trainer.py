@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import csv
 import os
+import sys
 import time
 from collections.abc import Iterator
 from typing import Any, Protocol
@@ -25,6 +26,7 @@ from cliport.agents.base import optimizer_step
 from cliport.env.environment import expected_renderer
 from cliport.errors import RunDirError, UserError
 from cliport.train.config import TrainConfig
+from cliport.train.recipes import Recipe
 from cliport.train.resume import load_optimizer_state
 from cliport.utils.device import bf16_native, resolve_device
 from cliport.utils.files import load_torch, save_torch, write_json
@@ -71,14 +73,15 @@ def load_run_config(run_dir: str) -> TrainConfig:
 
 
 class _LossModule(nn.Module):
-    """Wraps an agent so that DDP sees ``forward(batch) -> (loss, info)``."""
+    """Wraps an agent so that DDP sees ``forward(batch) -> (loss, info)`` with the recipe's loss."""
 
-    def __init__(self, agent: nn.Module):
+    def __init__(self, agent: nn.Module, loss: str):
         super().__init__()
         self.agent = agent
+        self.loss = loss
 
     def forward(self, batch: dict[str, Any]) -> tuple[torch.Tensor, dict[str, float]]:
-        return self.agent.compute_loss(batch)
+        return self.agent.compute_loss(batch, self.loss)
 
 
 def _distributed() -> tuple[int, int, int]:
@@ -156,6 +159,18 @@ def _check_demo_rendering(dataset: Any, config: TrainConfig) -> None:
             )
 
 
+def _set_encoder_norms(agent: Any, recipe: Recipe, rank: int) -> None:
+    """The recipe's encoder batch-norm mode; a note where an agent's frozen encoder cannot follow it."""
+    applied = agent.set_encoder_norm_training(recipe.encoder_norms == "train")
+    has_norms = agent.encoder is not None and bool(agent.encoder.norm_stats())
+    if recipe.encoder_norms == "train" and has_norms and not applied and rank == 0:
+        print(
+            f"note: the {recipe.name} recipe trains the frozen encoder's batch norms per net, but {agent.name} "
+            "keeps no per-net statistics: its encoder stays in inference mode",
+            file=sys.stderr,
+        )
+
+
 def train(
     config: TrainConfig, resume: bool = False, progress: bool = True, validator: Validator | None = None
 ) -> dict[str, Any]:
@@ -173,18 +188,30 @@ def train(
         device = torch.device("cuda", local_rank)
     torch.manual_seed(config.seed * 1000 + rank)
 
+    recipe = config.training_recipe()
     agent = make_agent(config.agent, config.agent_config).to(device)
+    _set_encoder_norms(agent, recipe, rank)
     dataset = DemoDataset(
-        config.data_dir, config.task, "train", config.n_demos, seed=config.seed, rotation_aug=config.rotation_aug
+        config.data_dir,
+        config.task,
+        "train",
+        config.n_demos,
+        seed=config.seed,
+        rotation_aug=config.rotation_aug,
+        aug_pivot=recipe.aug_pivot,
+        aug_interpolation=recipe.aug_interpolation,
     )
     _check_demo_rendering(dataset, config)
-    optimizer = agent.make_optimizer()
+    optimizer = agent.make_optimizer(eps=recipe.adam_eps)
 
     step = 0
     if resume and os.path.exists(last_path):
         payload = read_checkpoint(last_path)
         if payload["agent"] != config.agent:
             raise TrainError(f"{last_path} is a checkpoint of agent {payload['agent']!r}, not {config.agent!r}")
+        saved_recipe = payload.get("recipe", "legacy")
+        if saved_recipe != config.recipe:
+            raise TrainError(f"{last_path} was trained with the {saved_recipe} recipe, not {config.recipe}")
         agent.load_trainable_state_dict(payload["state_dict"])
         load_optimizer_state(optimizer, payload["trainer"]["optimizer"])  # into this device's layout and Adam
         step = int(payload["trainer"]["step"])
@@ -193,7 +220,7 @@ def train(
         os.makedirs(run.root, exist_ok=True)
         write_json(run.config, config.to_dict())
 
-    model: nn.Module = _LossModule(agent)
+    model: nn.Module = _LossModule(agent, recipe.loss)
     if world > 1:
         model = nn.parallel.DistributedDataParallel(model, device_ids=[local_rank] if device.type == "cuda" else None)
     use_amp = config.amp == "bf16" or (config.amp == "auto" and bf16_native(device))
@@ -216,7 +243,7 @@ def train(
     def save(kind: int | str) -> None:
         if rank != 0:
             return
-        payload = agent.checkpoint_payload()
+        payload = {**agent.checkpoint_payload(), "recipe": config.recipe}
         if kind == "last":
             payload["trainer"] = {
                 "step": step,
