@@ -4,7 +4,7 @@ Usage: python scripts/compare_renderers.py [--tasks block-insertion packing-shap
 Renders the first observation of each task's seed with ``renderer="cpu"`` (TinyRenderer) and ``"egl"``
 (PyBullet's EGL plugin: the GPU where there is one, Mesa's software OpenGL elsewhere) and reports how
 many fused colour pixels and height cells differ and by how much. Imports no torch (EGL through Mesa
-must not share a process with it, see the README).
+must not share a process with it, see docs/workcell.md).
 """
 
 from __future__ import annotations

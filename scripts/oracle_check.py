@@ -10,7 +10,7 @@ Success = total reward > 0.99. A task group name (e.g. multi-ravens) prints one 
 With ``--record-dir DIR`` every finished seed is appended to ``DIR/TASK.jsonl`` as one JSON line the
 moment it is done, and seeds already there (same mode and camera scale) are not run again: an interrupted check
 resumes where it stopped, several runs can fill one file, and the summary covers recorded and new
-seeds alike. ``scripts/oracle_table.py`` turns the files under ``docs/oracle/`` into the README table.
+seeds alike. ``scripts/oracle_table.py`` turns the files under ``docs/oracle/`` into the table of docs/tasks.md.
 Records do not say which code produced them beyond the version and commit: after changing a task,
 start a new file (or re-run the seeds in question with ``--seeds``, which always re-runs them).
 """

@@ -1,7 +1,7 @@
 """Summarise the recorded oracle checks (``docs/oracle/*.jsonl``) as a markdown table.
 
 Usage: python scripts/oracle_table.py                      (print the table)
-       python scripts/oracle_table.py --readme README.md   (rewrite the table between its markers)
+       python scripts/oracle_table.py --readme docs/tasks.md   (rewrite the table between its markers)
 
 Each file holds one JSON line per seed, written by ``scripts/oracle_check.py --record-dir docs/oracle``.
 Rows are per task and mode; a seed recorded twice counts once, with its latest result. The table shows

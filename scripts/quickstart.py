@@ -3,7 +3,7 @@
 On a CPU it trains the Transporter agent at an eighth of the published width on place-red-in-green: 10
 demos, one place rotation (the task's bowls are round, so the expert's place yaw carries no information;
 see ``Task.place_yaw_informative``), 400 steps at batch 1, then evaluates 20 test episodes in parallel
-simulators: about 4 minutes on 2 cores (the choices and what each trades are in the README). On a CUDA GPU
+simulators: about 4 minutes on 2 cores (the choices and what each trades are in docs/quickstart.md). On a CUDA GPU
 it trains at the published width instead. Defaults: ``configs/quickstart.toml``. Either way it saves the
 heatmaps and a GIF of a test episode the agent solved. Everything goes to out/quickstart/; results.json
 sums it up. Run it again and it resumes: finished demos and training are kept.

@@ -106,7 +106,7 @@ def read_checkpoint(path: str | os.PathLike[str]) -> dict[str, Any]:
     if written < CHECKPOINT_FORMAT:
         raise CheckpointError(
             f"{path} was written by cliport before 0.2.0 (checkpoint format {written}), whose networks differ from "
-            "the reference CLIPort's (README: Parity with the reference) and cannot load these weights; retrain it"
+            "the reference CLIPort's (docs/parity.md) and cannot load these weights; retrain it"
         )
     if written > CHECKPOINT_FORMAT:
         raise CheckpointError(f"{path} was written by a newer cliport (checkpoint format {written}); upgrade cliport")

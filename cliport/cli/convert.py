@@ -1,6 +1,6 @@
 """cliport-convert: a checkpoint of the reference CLIPort code as a cliport run folder.
 
-See :mod:`cliport.train.convert` and the README ("Coming from the reference CLIPort").
+See :mod:`cliport.train.convert` and docs/parity.md ("Coming from the reference CLIPort").
 """
 
 from __future__ import annotations

@@ -2,8 +2,8 @@
 poses, :mod:`cliport.deploy.importer`) or datasets of the reference CLIPort and Ravens (the layout their
 demos.py writes, :mod:`cliport.deploy.ravens`).
 
-The formats are described in those modules and the README ("Importing real demonstrations", "Importing
-reference datasets").
+The formats are described in those modules and docs/your-scene.md ("Importing real demonstrations",
+"Importing reference datasets").
 """
 
 from __future__ import annotations

@@ -16,7 +16,7 @@ T + 1 observations (the last one after the last action):
   (missing: "task completed.", as the reference's dataset does).
 
 Each step's three images are fused by :func:`cliport.env.heightmap.fuse_cameras` with those cameras
-(the reference's rule, see The workcell in the README), and each episode is written by
+(the reference's rule, see docs/workcell.md), and each episode is written by
 :func:`cliport.data.episode_io.save_episode` to ``DATA_DIR/<task>-<mode>/<seed:06d>.npz`` with the
 episode's own seed (the reference's seed protocol is ours), meta ``imported``: true, ``format``:
 ``ravens``, ``source`` (the episode's action pickle) and ``camera_scale`` (H / 480).

@@ -113,7 +113,7 @@ class Environment:
         self.client = p.connect(p.DIRECT)
         self.asset_dir = assets.new_asset_dir()
         self.renderer, self.renderer_name = self._choose_renderer(self.config.renderer)
-        #: "egl" or "tiny": recorded in demos and evaluation results (their pixels differ, see the README).
+        #: "egl" or "tiny": recorded in demos and evaluation results (their pixels differ, see docs/workcell.md).
         self.renderer_kind = "egl" if self.renderer == p.ER_BULLET_HARDWARE_OPENGL else "tiny"
         log.info("rendering with %s", self.renderer_name)
         self.camera_configs = [c.scaled(self.config.camera_scale) for c in cameras.realsense_d415()]

@@ -14,7 +14,7 @@ reported with its seed, killed, replaced, and its episode re-run from the start.
 worker within about :data:`SHUTDOWN_GRACE` + 3 seconds in all, whatever state they are in. Only with
 ``step_timeout=None`` and one worker does the simulator run in the calling process (nothing could stop
 it there). Results come back in seed order, and on a CPU the same seeds give the same results whatever
-the number of workers (on a GPU see the README: an action can depend on how many observations shared
+the number of workers (on a GPU see docs/training-gpu.md: an action can depend on how many observations shared
 its ``act_batch`` call).
 """
 

@@ -2,8 +2,8 @@
 
 Every net here maps a raw input (N, 6, H, W) — RGB in [0, 1], height in metres repeated 3x — and an
 optional sentence feature (N, sentence_dim) to an (N, out, H, W) map; each normalises its own input.
-The nets compute what the reference CLIPort's nets compute given the same weights (see the README's
-"Parity with the reference").
+The nets compute what the reference CLIPort's nets compute given the same weights (see
+docs/parity.md).
 """
 
 from __future__ import annotations

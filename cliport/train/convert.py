@@ -108,7 +108,7 @@ def detect_agent_type(ckpt: ReferenceCheckpoint) -> str:
     if any(".text_fc." in k for k in keys):
         raise CheckpointError(
             f"{ckpt.path} is a checkpoint of a reference RN50-BERT agent, whose released nets cannot run "
-            f"(README: Agents); {supported_line()}"
+            f"(docs/agents.md); {supported_line()}"
         )
     found = [name for name, signature in _SIGNATURES.items() if all(k in keys for k in signature)]
     if found == ["clip_lingunet_transporter"] and any(k.startswith("attention.attn_stream_two.") for k in keys):

@@ -6,7 +6,7 @@ builds the reference agent with seeded random weights rescaled so its heatmaps a
 reference's own ``act()`` on a simulator observation; ours loads the same weights through
 :mod:`cliport.models.reference_names` (and CLIP from the oracle's CLIP state dict, through the real
 weights-file loader) and acts on the same observation. CLIP runs in fp32 on both sides here (the
-reference converts it to fp16, see the README's "Parity with the reference").
+reference converts it to fp16, see docs/parity.md).
 """
 
 from __future__ import annotations
