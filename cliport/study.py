@@ -16,8 +16,9 @@ import statistics
 from typing import Any
 
 from cliport.errors import ConfigError
-from cliport.evaluation.published import published_scores
+from cliport.evaluation.published import TABLE_RECIPES, paper_recipes, published_scores
 from cliport.train.config import TrainConfig
+from cliport.utils.config import read_defaults
 from cliport.utils.files import read_json, write_json
 from cliport.utils.run_dir import RunDir
 
@@ -42,6 +43,9 @@ class StudyConfig:
             over seeds (the CLIPort authors advise 3 or more); empty = [seed].
         camera_scale: camera resolution of the demos and of every evaluation episode.
         demo_workers: parallel simulators for demo generation.
+        recipes: training recipes (configs/recipes.toml), one run per (agent, demos, recipe, seed); empty = each
+            agent's papers' recipes (transporter_only: ravens and cliport; the CLIPort agents: cliport), so that
+            every published column is compared with a run trained as that paper's code trains.
         agent_config: agent settings (e.g. {"width": 0.25, "clip_weights": "random"}); each run takes the keys
             its agent has, and a key no studied agent has is an error.
         checkpoint_steps: checkpoint steps (None: configs/train.toml's).
@@ -64,15 +68,22 @@ class StudyConfig:
     camera_scale: float = 1.0
     demo_workers: int = 1
     agent_config: dict[str, Any] = dataclasses.field(default_factory=dict)
+    recipes: list[str] = dataclasses.field(default_factory=list)
     checkpoint_steps: list[int] | None = None
     eval_workers: int | None = None
 
     def training_seeds(self) -> list[int]:
         return sorted(set(self.seeds)) or [self.seed]
 
-    def train_config(self, agent: str, n_demos: int, seed: int | None = None) -> TrainConfig:
-        """The train config of the (agent, n_demos, seed) run (its folder names the seed when there are several)."""
+    def agent_recipes(self, agent: str) -> list[str]:
+        """The recipes ``agent`` trains with in this study."""
+        return list(self.recipes) or paper_recipes(agent) or [read_defaults("train")["recipe"]]
+
+    def train_config(self, agent: str, n_demos: int, seed: int | None = None, recipe: str | None = None) -> TrainConfig:
+        """The train config of the (agent, n_demos, recipe, seed) run (its folder names the recipe, and the seed
+        when there are several)."""
         seed = self.seed if seed is None else seed
+        recipe = recipe or self.agent_recipes(agent)[0]
         suffix = f"-s{seed}" if len(self.training_seeds()) > 1 else ""
         from cliport.agents import agent_class
 
@@ -87,7 +98,8 @@ class StudyConfig:
             "n_demos": n_demos,
             "n_steps": self.n_steps,
             "data_dir": self.data_dir,
-            "run_dir": os.path.join(self.out, "runs", f"{agent}-n{n_demos}{suffix}"),
+            "run_dir": os.path.join(self.out, "runs", f"{agent}-{recipe}-n{n_demos}{suffix}"),
+            "recipe": recipe,
             "seed": seed,
             "val_episodes": self.val_episodes,
             "batch_size": self.batch_size,
@@ -110,8 +122,9 @@ def run_study(config: StudyConfig, progress: bool = True) -> dict[str, Any]:
     from cliport.utils.device import resolve_device
 
     train_configs = {
-        (a, n, seed): config.train_config(a, n, seed)
+        (a, recipe, n, seed): config.train_config(a, n, seed, recipe)
         for a in config.agents
+        for recipe in config.agent_recipes(a)
         for n in config.n_demos
         for seed in config.training_seeds()
     }
@@ -125,8 +138,8 @@ def run_study(config: StudyConfig, progress: bool = True) -> dict[str, Any]:
         data_dir=config.data_dir, workers=config.demo_workers, camera_scale=config.camera_scale
     )
     generate(config.task, "train", max(config.n_demos), demo_config, progress=progress)
-    per_seed: dict[tuple[str, int], list[dict[str, Any]]] = {}
-    for (agent_name, n, seed), train_config in train_configs.items():
+    per_seed: dict[tuple[str, str, int], list[dict[str, Any]]] = {}
+    for (agent_name, recipe, n, seed), train_config in train_configs.items():
         run = RunDir(train_config.resolved_run_dir())
         device = resolve_device(train_config.device)
         validate = config.val_episodes > 0
@@ -162,12 +175,14 @@ def run_study(config: StudyConfig, progress: bool = True) -> dict[str, Any]:
                     progress,
                     workers=test_workers,
                 )
-                result.update(checkpoint=step, agent=agent_name, weight_sources=agent.weight_source_values())
+                result.update(
+                    checkpoint=step, agent=agent_name, recipe=recipe, weight_sources=agent.weight_source_values()
+                )
                 write_json(path, result)
             test[str(step)] = read_json(path)["mean_score"]
         val = read_json(run.val) if os.path.exists(run.val) else {"checkpoints": {}}
-        per_seed.setdefault((agent_name, n), []).append({**summarise_run(config.task, agent_name, n, test, val),
-                                                         "seed": seed})  # fmt: skip
+        summary = summarise_run(config.task, agent_name, n, test, val, recipe)
+        per_seed.setdefault((agent_name, recipe, n), []).append({**summary, "seed": seed})
     runs = [combine_seeds(group) for group in per_seed.values()]
     results = {"task": config.task, "n_steps": config.n_steps, "seeds": config.training_seeds(), "runs": runs}
     write_json(os.path.join(config.out, "results.json"), results)
@@ -177,20 +192,25 @@ def run_study(config: StudyConfig, progress: bool = True) -> dict[str, Any]:
     return results
 
 
-def summarise_run(task: str, agent: str, n_demos: int, test: dict[str, float], val: dict[str, Any]) -> dict[str, Any]:
-    """One run's scores: per checkpoint (val, test), val-selected, last, best-on-test, published."""
+def summarise_run(
+    task: str, agent: str, n_demos: int, test: dict[str, float], val: dict[str, Any], recipe: str | None = None
+) -> dict[str, Any]:
+    """One run's scores: per checkpoint (val, test), val-selected, last, best-on-test, and the published scores
+    of the papers whose code trains with ``recipe`` (all of them without one)."""
     steps = sorted(int(s) for s in test)
+    published = [p for p in published_scores(task, agent, n_demos) if recipe in (None, TABLE_RECIPES[p["table"]])]
     val_scores = {int(s): v["mean_score"] for s, v in val.get("checkpoints", {}).items()}
     selected = val.get("best_step")
     return {
         "agent": agent,
+        "recipe": recipe,
         "n_demos": n_demos,
         "checkpoints": [{"step": s, "val": val_scores.get(s), "test": test[str(s)]} for s in steps],
         "val_selected_step": selected,
         "test_at_val_selected": test.get(str(selected)) if selected is not None else None,
         "test_at_last": test[str(steps[-1])] if steps else None,
         "best_test": max(test.values()) if test else None,
-        "published": published_scores(task, agent, n_demos),
+        "published": published,
     }
 
 
@@ -212,6 +232,7 @@ def combine_seeds(runs: list[dict[str, Any]]) -> dict[str, Any]:
     first = runs[0]
     row: dict[str, Any] = {
         "agent": first["agent"],
+        "recipe": first.get("recipe"),
         "n_demos": first["n_demos"],
         "seeds": [r.get("seed") for r in runs],
         "published": first["published"],
@@ -237,8 +258,8 @@ def markdown_table(results: dict[str, Any]) -> str:
         "",
         "Scores are mean total reward x100 on test episodes.",
         "",
-        "| agent | demos | test @ val-selected ckpt | test @ last | best test over ckpts | published |",
-        "|---|---|---|---|---|---|",
+        "| agent | recipe | demos | test @ val-selected ckpt | test @ last | best test over ckpts | published |",
+        "|---|---|---|---|---|---|---|",
     ]
 
     def fmt(v: float | None, std: float | None = None) -> str:
@@ -256,14 +277,15 @@ def markdown_table(results: dict[str, Any]) -> str:
         elif chosen is not None:
             selected += f" (step {chosen})"
         last, best = fmt(r["test_at_last"], r.get("test_at_last_std")), fmt(r["best_test"], r.get("best_test_std"))
-        lines.append(f"| {r['agent']} | {r['n_demos']} | {selected} | {last} | {best} | {published} |")
+        recipe = r.get("recipe") or "-"
+        lines.append(f"| {r['agent']} | {recipe} | {r['n_demos']} | {selected} | {last} | {best} | {published} |")
     lines += ["", "Per checkpoint (val / test):", ""]
     for r in results["runs"]:
         cells = ", ".join(
             f"{c['step']}: {fmt(c['val'], c.get('val_std'))} / {fmt(c['test'], c.get('test_std'))}"
             for c in r["checkpoints"]
         )
-        lines.append(f"- {r['agent']}, {r['n_demos']} demos: {cells}")
+        lines.append(f"- {r['agent']} ({r.get('recipe') or '-'}), {r['n_demos']} demos: {cells}")
     return "\n".join(lines) + "\n"
 
 
@@ -281,7 +303,10 @@ def plot_study(results: dict[str, Any], path: str) -> None:
         xs = [c["step"] for c in r["checkpoints"]]
         ys = [c["test"] for c in r["checkpoints"]]
         n_seeds = len(r.get("seeds") or [None])
-        label = f"ours: {r['agent']}, {r['n_demos']} demos" + (f", mean of {n_seeds} seeds" if n_seeds > 1 else "")
+        recipe = f" ({r['recipe']} recipe)" if r.get("recipe") else ""
+        label = f"ours: {r['agent']}{recipe}, {r['n_demos']} demos" + (
+            f", mean of {n_seeds} seeds" if n_seeds > 1 else ""
+        )
         ax.plot(xs, ys, "o-", color=color, label=label)
         stds = [c.get("test_std") for c in r["checkpoints"]]
         if any(s is not None for s in stds):

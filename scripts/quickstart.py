@@ -26,6 +26,7 @@ from cliport.errors import ConfigError, RunDirError
 from cliport.evaluation.evaluate import evaluate
 from cliport.evaluation.free_form import run_instruction
 from cliport.train.config import TrainConfig
+from cliport.train.recipes import recipe_names
 from cliport.train.trainer import load_run_config, train
 from cliport.utils.config import read_defaults
 from cliport.utils.files import write_json
@@ -49,6 +50,9 @@ def parse_args(device: str) -> Any:
     parser.add_argument("--episodes", type=int, default=defaults["episodes"], help="test episodes")
     parser.add_argument("--camera-scale", type=float, default=per_device["camera_scale"])
     parser.add_argument("--seed", type=int, default=0, help="training seed")
+    parser.add_argument(
+        "--recipe", default=defaults["recipe"], choices=recipe_names(), help="training recipe (configs/recipes.toml)"
+    )
     args = parser.parse_args()
     for name in ("demos", "steps", "batch_size", "episodes"):
         if getattr(args, name) < 1:
@@ -61,6 +65,7 @@ def train_config(args: Any, data_dir: str, run_dir: str, n_rotations: int) -> Tr
     config = TrainConfig.build(
         {
             "agent": AGENT,
+            "recipe": args.recipe,
             "task": args.task,
             "n_demos": args.demos,
             "n_steps": args.steps,
@@ -102,8 +107,8 @@ def main() -> None:
     timings["demos_s"] = time.perf_counter() - start
 
     print(
-        f"2/4 training {AGENT} on {device} (width {args.width}, {n_rotations} place rotation(s), "
-        f"batch {args.batch_size}) for {args.steps} steps"
+        f"2/4 training {AGENT} on {device} with the {args.recipe} recipe (width {args.width}, "
+        f"{n_rotations} place rotation(s), batch {args.batch_size}) for {args.steps} steps"
     )
     last = os.path.join(run_dir, "checkpoints", "last.pt")
     mark = time.perf_counter()
@@ -131,6 +136,7 @@ def main() -> None:
         "demos": {k: demos[k] for k in ("saved", "skipped_existing", "demos_per_minute", "mb_per_step")},
         "training": {
             "agent": AGENT,
+            "recipe": args.recipe,
             "steps": args.steps,
             "width": args.width,
             "n_rotations": n_rotations,

@@ -64,6 +64,38 @@ def reference_oracle(reference_dir: str):
     return run
 
 
+@pytest.fixture(scope="session")
+def reference_utils(reference_dir: str):
+    """A function running one job of ``tests/run_reference_utils.py`` (the reference's ``utils.py``) in a
+    subprocess: ``(folder, job, **arrays) -> output arrays``."""
+    runner = os.path.join(os.path.dirname(__file__), "run_reference_utils.py")
+
+    def call(folder, job: str, **arrays: np.ndarray) -> dict[str, np.ndarray]:
+        src, dst = os.path.join(folder, f"{job}-in.npz"), os.path.join(folder, f"{job}-out.npz")
+        np.savez(src, job=np.array(job), **arrays)
+        proc = subprocess.run(
+            [sys.executable, runner, reference_dir, src, dst], capture_output=True, text=True, timeout=300, cwd=folder
+        )
+        assert proc.returncode == 0, proc.stderr[-4000:]
+        with np.load(dst) as z:
+            return {k: z[k] for k in z.files}
+
+    return call
+
+
+@pytest.fixture(scope="session")
+def tiny_config():
+    """``tiny_config(agent, **overrides)``: settings of a tiny agent (an eighth of the published width, 32-pixel
+    crops, 8 rotations, random pretrained weights) for fast CPU tests."""
+    from cliport.agents import agent_class
+
+    def config(agent: str, **overrides: object) -> dict[str, object]:
+        base = {"width": 0.125, "crop_size": 32, "n_rotations": 8}
+        return {**base, **dict.fromkeys(agent_class(agent).weight_sources, "random"), **overrides}
+
+    return config
+
+
 def _reference_image(obs: dict[str, np.ndarray]):
     """The reference agents' input for an observation: colour 0..255 and the height repeated 3x, (H, W, 6)
     float32 (a torch tensor, for the oracle's request files)."""

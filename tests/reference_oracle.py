@@ -20,6 +20,15 @@ strings and numbers only.
         [str]}), recording the pick and place logits (the softmax inputs), the key and query outputs and
         act()'s result. The reference converts CLIP to fp16 (its build_model does); without --clip-fp16
         every CLIP copy is put back to fp32 after loading, so the nets are compared in fp32.
+    python tests/reference_oracle.py --reference-dir R train AGENT OUT.ckpt REQUEST TRAINED_OUT [--seed S]
+                                                           [--perturb-clip-bn] [--n-rotations N] [--steps K]
+        As ``weights`` (the checkpoint OUT.ckpt and OUT.ckpt.clip.pt hold the state before training), then
+        puts every CLIP copy back to fp32 and runs K passes (default 1) of the reference's own training step
+        over REQUEST's frames ({"frames": [{"img": (H, W, 6) float32, "p0": (2,), "p1": (2,) int pixels,
+        "p1_theta": float, "lang": str}]}): ``attention.train(); transport.train(); attn_training_step(frame);
+        transport_training_step(frame)``, what its ``training_step`` runs minus Lightning's bookkeeping.
+        TRAINED_OUT gets {"state_dict": the agent's state after the steps, "losses": [(pick, place), ...]}.
+        ``--n-rotations`` builds the agents with another rotation count than the reference's 36.
     python tests/reference_oracle.py --reference-dir R clip CKPT REQUEST OUT
         The pick net's CLIP (fp32): token ids, sentence features and the prepool trunk levels of REQUEST's
         "texts" and "rgb" ((N, 3, H, W) float in [0, 1]).
@@ -98,9 +107,18 @@ def _calibrate_clip(clip: Any, seed: int, scale: float) -> None:
         norm.float()
 
 
-def cmd_weights(ref: types.ModuleType, args: argparse.Namespace) -> None:
+def cmd_weights(ref: types.ModuleType, args: argparse.Namespace) -> Any:
     import torch
 
+    if args.n_rotations != 36:
+        base_config = ref.config
+
+        def config(agent_name: str, task: str = "packing-boxes-pairs-seen-colors") -> dict:
+            cfg = base_config(agent_name, task)
+            cfg["train"]["n_rotations"] = args.n_rotations
+            return cfg
+
+        ref.config = config
     with contextlib.redirect_stdout(sys.stderr):
         agent = ref.build(args.agent, seed=args.seed)
     _rescale(agent, args.seed + 1)
@@ -122,11 +140,39 @@ def cmd_weights(ref: types.ModuleType, args: argparse.Namespace) -> None:
     if copies:
         clip_sd = {k: v.detach().float().clone() for k, v in copies[0][1].state_dict().items()}
         torch.save(clip_sd, args.out + ".clip.pt")
-    if args.act:
+    if getattr(args, "act", None):
         if not args.clip_fp16:
             for _, clip in copies:
                 clip.float()
         _act(agent, args.act[0], args.act[1])
+    return agent
+
+
+def cmd_train(ref: types.ModuleType, args: argparse.Namespace) -> None:
+    import torch
+
+    agent = cmd_weights(ref, args)
+    for _, clip in _clip_copies(agent):
+        clip.float()
+    frames = torch.load(args.request, weights_only=True)["frames"]
+    losses = []
+    for _ in range(args.steps):
+        for frame in frames:
+            sample = {
+                "img": frame["img"].numpy(),
+                "p0": tuple(int(x) for x in frame["p0"]),
+                "p0_theta": 0.0,
+                "p1": tuple(int(x) for x in frame["p1"]),
+                "p1_theta": float(frame["p1_theta"]),
+                "lang_goal": frame["lang"],
+            }
+            agent.attention.train()
+            agent.transport.train()
+            pick_loss, _ = agent.attn_training_step(sample)
+            place_loss, _ = agent.transport_training_step(sample)
+            losses.append((float(pick_loss), float(place_loss)))
+    state = {k: v.detach().clone() for k, v in agent.state_dict().items()}
+    torch.save({"state_dict": state, "losses": losses}, args.trained_out)
 
 
 def _build_loaded(ref: types.ModuleType, agent_name: str, ckpt_path: str, clip_fp16: bool) -> Any:
@@ -240,6 +286,16 @@ def main() -> None:
     weights.add_argument("--perturb-clip-bn", action="store_true")
     weights.add_argument("--act", nargs=2, metavar=("REQUEST", "ACT_OUT"))
     weights.add_argument("--clip-fp16", action="store_true")
+    weights.add_argument("--n-rotations", type=int, default=36)
+    train = sub.add_parser("train")
+    train.add_argument("agent")
+    train.add_argument("out")
+    train.add_argument("request")
+    train.add_argument("trained_out")
+    train.add_argument("--seed", type=int, default=0)
+    train.add_argument("--perturb-clip-bn", action="store_true")
+    train.add_argument("--n-rotations", type=int, default=36)
+    train.add_argument("--steps", type=int, default=1)
     for name in ("act", "clip"):
         p = sub.add_parser(name)
         p.add_argument("agent")
@@ -251,7 +307,7 @@ def main() -> None:
     args = parser.parse_args()
     os.environ.setdefault("CUDA_VISIBLE_DEVICES", "")
     ref = _import_reference(args.reference_dir)
-    {"weights": cmd_weights, "act": cmd_act, "clip": cmd_clip}[args.command](ref, args)
+    {"weights": cmd_weights, "act": cmd_act, "clip": cmd_clip, "train": cmd_train}[args.command](ref, args)
 
 
 if __name__ == "__main__":

@@ -18,6 +18,9 @@ the reference's functions on the inputs. Nothing of the reference is copied into
 - ``rotations``: ``euler`` (K, 3), ``quat`` (K, 4) -> ``eulerXYZ_to_quatXYZW`` of each (K, 4),
   ``quatXYZW_to_eulerXYZ`` of each (K, 3) and ``act_quat`` (K, 4): the reference agent's
   ``eulerXYZ_to_quatXYZW((0, 0, -theta))`` for ``theta`` (K,).
+- ``perturb``: ``img`` (H, W, 6) float32, ``pixels`` (2, 2) int (row, col), ``seeds`` (K,) -> for each seed, the
+  reference's ``perturb(img, pixels)`` (its SE(2) training augmentation) after ``np.random.seed(seed)``: ``image``
+  (K, H, W, 6), ``rounded`` (K, 2, 2) pixel labels, and its draws ``theta`` (K,), ``trans`` (K, 2), ``pivot`` (K, 2).
 - ``cameras``: the reference's ``RealSenseD415.CONFIG`` and ``Oracle.CONFIG`` as JSON (``configs``).
 """
 
@@ -76,6 +79,15 @@ def main(reference_dir: str, src: str, dst: str) -> None:
         out["quat"] = np.array([utils.eulerXYZ_to_quatXYZW(tuple(e)) for e in inp["euler"]])
         out["euler"] = np.array([utils.quatXYZW_to_eulerXYZ(tuple(q)) for q in inp["quat"]])
         out["act_quat"] = np.array([utils.eulerXYZ_to_quatXYZW((0, 0, -theta)) for theta in inp["theta"]])
+    elif job == "perturb":
+        runs = []
+        for seed in inp["seeds"]:
+            np.random.seed(int(seed))
+            pixels = [tuple(int(v) for v in p) for p in inp["pixels"]]
+            image, _, rounded, (theta, trans, pivot) = utils.perturb(inp["img"], pixels)
+            runs.append((image, np.array(rounded), theta, np.asarray(trans), np.asarray(pivot, dtype=np.float64)))
+        for i, key in enumerate(("image", "rounded", "theta", "trans", "pivot")):
+            out[key] = np.stack([np.asarray(r[i]) for r in runs])
     elif job == "cameras":
         out["configs"] = np.array(
             json.dumps(

@@ -20,7 +20,14 @@ def test_summary_table_and_plot(tmp_path):
     assert run["test_at_val_selected"] == 60.0 and run["test_at_last"] == 80.0 and run["best_test"] == 80.0
     results = {"task": "block-insertion", "n_steps": 5000, "runs": [run]}
     table = markdown_table(results)
-    assert "| transporter_only | 10 | 60.0 (step 2000) | 80.0 | 80.0 | 100.0 (Transporter Networks paper" in table
+    assert "| transporter_only | - | 10 | 60.0 (step 2000) | 80.0 | 80.0 | 100.0 (Transporter Networks paper" in table
+    # A run trained with a recipe stands beside the papers whose code trains that way.
+    ravens = summarise_run("assembling-kits", "transporter_only", 100, {"1000": 35.0}, val, "ravens")
+    cliport = summarise_run("assembling-kits", "transporter_only", 100, {"1000": 35.0}, val, "cliport")
+    assert [p["source"].split(",")[0] for p in ravens["published"]] == ["Transporter Networks paper"]
+    assert [p["source"].split(",")[0] for p in cliport["published"]] == ["CLIPort Table 6"]
+    table = markdown_table({"task": "assembling-kits", "n_steps": 1000, "runs": [ravens, cliport]})
+    assert "| transporter_only | ravens | 100 |" in table and "| transporter_only | cliport | 100 |" in table
     path = str(tmp_path / "plot.png")
     plot_study(results, path)
     assert os.path.getsize(path) > 10000
@@ -44,6 +51,11 @@ def test_several_seeds_are_reported_as_mean_and_std(tmp_path):
     config = StudyConfig(task="block-insertion", agents=["transporter_only"], n_demos=[10], n_steps=10, out="s",
                          data_dir="d", seeds=[2, 0, 1])  # fmt: skip
     assert config.training_seeds() == [0, 1, 2]
-    assert config.train_config("transporter_only", 10, 1).run_dir == "s/runs/transporter_only-n10-s1"
+    # Each agent trains with its papers' recipes unless the study names them.
+    assert config.agent_recipes("transporter_only") == ["ravens", "cliport"]
+    assert config.agent_recipes("two_stream") == ["cliport"]
+    one = config.train_config("transporter_only", 10, 1, "cliport")
+    assert one.run_dir == "s/runs/transporter_only-cliport-n10-s1" and one.recipe == "cliport"
     assert StudyConfig(task="t", agents=["transporter_only"], n_demos=[1], n_steps=1, out="s", data_dir="d",
-                       ).train_config("transporter_only", 1).run_dir == "s/runs/transporter_only-n1"  # fmt: skip
+                       recipes=["legacy"]).train_config("transporter_only", 1).run_dir == (
+        "s/runs/transporter_only-legacy-n1")  # fmt: skip

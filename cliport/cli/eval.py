@@ -125,6 +125,7 @@ def main(argv: list[str] | None = None) -> None:
                     )
                     validated_with = None  # said once
                 result.update(checkpoint=which, checkpoint_file=path, **agent.describe(), run_dir=source)
+                result["recipe"] = run_config.recipe  # how the evaluated weights were trained
                 write_json(os.path.join(out, f"{name}-{config.mode}-{which}.json"), result)
                 summary = {k: v for k, v in result.items() if k != "episodes"}
                 print(json.dumps(summary))

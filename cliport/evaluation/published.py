@@ -36,6 +36,23 @@ def published_results() -> dict[str, Any]:
     return json.loads(text)
 
 
+#: The training recipe (configs/recipes.toml) of the code behind each published table: Transporter Networks
+#: trained with Ravens' code, every CLIPort table (its Transporter-only columns too) with CLIPort's.
+TABLE_RECIPES = {
+    "transporter_paper_test": "ravens",
+    "cliport_table6_val_ravens": "cliport",
+    "cliport_table1_test": "cliport",
+}
+
+
+def paper_recipes(agent: str) -> list[str]:
+    """The recipes of the papers that publish ``agent``'s columns (e.g. transporter_only: ravens, cliport)."""
+    from cliport.agents import agent_class
+
+    recipes = {TABLE_RECIPES[table] for table in agent_class(agent).published_columns}
+    return sorted(recipes, key=lambda r: list(TABLE_RECIPES.values()).index(r))
+
+
 def published_scores(task: str, agent: str, n_demos: int) -> list[dict[str, Any]]:
     """Published scores (x100) of ``agent`` on ``task`` with ``n_demos`` demos, one per source."""
     from cliport.agents import agent_class
@@ -49,5 +66,5 @@ def published_scores(task: str, agent: str, n_demos: int) -> list[dict[str, Any]
         name = _CLIPORT_NAMES.get(task, task) if table == "cliport_table1_test" else task
         value = data.get(table, {}).get(name, {}).get(column, {}).get(str(n_demos))
         if value is not None:
-            out.append({"source": label, "score": float(value), "training_steps": steps})
+            out.append({"source": label, "score": float(value), "training_steps": steps, "table": table})
     return out

@@ -14,6 +14,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import torch
+
+from cliport.agents.base import PickPlaceAgent
 from cliport.data.augment import INTERPOLATIONS, PIVOTS
 from cliport.errors import ConfigError, UnknownNameError
 from cliport.utils.config import from_dict, read_defaults
@@ -47,6 +50,13 @@ class Recipe:
     encoder_norms: str
     aug_pivot: str
     aug_interpolation: str
+
+    def prepare(self, agent: PickPlaceAgent) -> tuple[torch.optim.Optimizer, int]:
+        """Set the agent's encoder batch-norm mode and build its optimiser with this recipe's epsilon; returns
+        the optimiser and how many nets train their encoder's batch norms. Steps then take ``loss=self.loss``
+        (:meth:`PickPlaceAgent.train_step`)."""
+        applied = agent.set_encoder_norm_training(self.encoder_norms == "train")
+        return agent.make_optimizer(eps=self.adam_eps), applied
 
     def __post_init__(self) -> None:
         for field, value, allowed in (

@@ -26,7 +26,6 @@ from cliport.agents.base import optimizer_step
 from cliport.env.environment import expected_renderer
 from cliport.errors import RunDirError, UserError
 from cliport.train.config import TrainConfig
-from cliport.train.recipes import Recipe
 from cliport.train.resume import load_optimizer_state
 from cliport.utils.device import bf16_native, resolve_device
 from cliport.utils.files import load_torch, save_torch, write_json
@@ -159,18 +158,6 @@ def _check_demo_rendering(dataset: Any, config: TrainConfig) -> None:
             )
 
 
-def _set_encoder_norms(agent: Any, recipe: Recipe, rank: int) -> None:
-    """The recipe's encoder batch-norm mode; a note where an agent's frozen encoder cannot follow it."""
-    applied = agent.set_encoder_norm_training(recipe.encoder_norms == "train")
-    has_norms = agent.encoder is not None and bool(agent.encoder.norm_stats())
-    if recipe.encoder_norms == "train" and has_norms and not applied and rank == 0:
-        print(
-            f"note: the {recipe.name} recipe trains the frozen encoder's batch norms per net, but {agent.name} "
-            "keeps no per-net statistics: its encoder stays in inference mode",
-            file=sys.stderr,
-        )
-
-
 def train(
     config: TrainConfig, resume: bool = False, progress: bool = True, validator: Validator | None = None
 ) -> dict[str, Any]:
@@ -190,7 +177,14 @@ def train(
 
     recipe = config.training_recipe()
     agent = make_agent(config.agent, config.agent_config).to(device)
-    _set_encoder_norms(agent, recipe, rank)
+    optimizer, applied = recipe.prepare(agent)
+    if recipe.encoder_norms == "train" and not applied and agent.encoder is not None and agent.encoder.norm_stats():
+        if rank == 0:
+            print(
+                f"note: the {recipe.name} recipe trains the frozen encoder's batch norms per net, but "
+                f"{agent.name} keeps no per-net statistics: its encoder stays in inference mode",
+                file=sys.stderr,
+            )
     dataset = DemoDataset(
         config.data_dir,
         config.task,
@@ -202,7 +196,6 @@ def train(
         aug_interpolation=recipe.aug_interpolation,
     )
     _check_demo_rendering(dataset, config)
-    optimizer = agent.make_optimizer(eps=recipe.adam_eps)
 
     step = 0
     if resume and os.path.exists(last_path):

@@ -43,9 +43,9 @@ def runs(data_dir, tmp_path_factory):
     """One 10-step run of each agent, validated on 1 episode per checkpoint (shared by the tests)."""
     root = tmp_path_factory.mktemp("runs")
     out = {}
-    for agent in ("transporter_only", "two_stream"):
+    for agent, recipe in (("transporter_only", "ravens"), ("two_stream", "cliport")):
         out[agent] = str(root / agent)
-        _run(train_cli.main, _train_args(data_dir, out[agent], agent))
+        _run(train_cli.main, _train_args(data_dir, out[agent], agent, extra=["--recipe", recipe]))
     return out
 
 
@@ -53,8 +53,15 @@ def runs(data_dir, tmp_path_factory):
 def test_train_then_eval(runs, agent, capsys):
     run_dir = runs[agent]
     assert RunDir(run_dir).checkpoint_steps() == [5, 10]
+    recipe = {"transporter_only": "ravens", "two_stream": "cliport"}[agent]
     with open(os.path.join(run_dir, "config.json")) as f:
-        assert json.load(f)["agent"] == agent
+        saved = json.load(f)
+    assert saved["agent"] == agent and saved["recipe"] == recipe
+    assert load_torch(RunDir(run_dir).checkpoint(5))["recipe"] == recipe
+    if agent == "two_stream":  # CLIP's batch norms trained: each net's running statistics moved
+        assert saved["agent_config"]["per_net_clip_stats"] is True
+        state = load_torch(RunDir(run_dir).checkpoint(10))["state_dict"]
+        assert any("encoder_stats" in k for k in state)
     with open(os.path.join(run_dir, "val.json")) as f:
         val = json.load(f)
     assert set(val["checkpoints"]) == {"5", "10"} and val["best_step"] in (5, 10)
@@ -68,11 +75,12 @@ def test_train_then_eval(runs, agent, capsys):
     assert 0.0 <= summary["mean_score"] <= 100.0 and len(summary["ci95"]) == 2 and len(summary["success_ci95"]) == 2
     assert summary["clip_weights"] == ("random" if agent == "two_stream" else None)
     assert summary["checkpoint"] == val["best_step"] and summary["renderer"] == val["renderer"]
+    assert summary["recipe"] == recipe
     with open(os.path.join(run_dir, "eval", f"{TASK}-test-{val['best_step']}.json")) as f:
         assert [e["seed"] for e in json.load(f)["episodes"]] == [10001, 10003]
 
 
-def test_resume_after_interruption(data_dir, tmp_path, monkeypatch):
+def test_resume_after_interruption(data_dir, tmp_path, monkeypatch, capsys):
     run_dir = str(tmp_path / "resume")
     real = trainer._batches
 
@@ -88,6 +96,10 @@ def test_resume_after_interruption(data_dir, tmp_path, monkeypatch):
     assert stop.value.code == 130
     monkeypatch.setattr(trainer, "_batches", real)
     assert load_torch(RunDir(run_dir).checkpoint("last"))["trainer"]["step"] == 7
+    with pytest.raises(SystemExit) as stop:  # a run keeps its recipe
+        _run(train_cli.main, ["--run-dir", run_dir, "--resume", "--recipe", "cliport", "--no-progress"])
+    assert stop.value.code == 2
+    assert "trains with the ravens recipe, not cliport" in capsys.readouterr().err
     _run(train_cli.main, ["--run-dir", run_dir, "--resume", "--no-progress"])
     assert load_torch(RunDir(run_dir).checkpoint("last"))["trainer"]["step"] == 10
     assert RunDir(run_dir).checkpoint_steps() == [5, 10]

@@ -11,9 +11,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import os
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -24,20 +21,6 @@ from cliport.env import cameras as cams
 from cliport.env import heightmap as hm
 from cliport.env import transforms as tf
 from cliport.env.environment import EnvConfig, Environment
-
-RUNNER = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "run_reference_utils.py")
-
-
-def call_reference(reference_dir: str, folder, job: str, **arrays: np.ndarray) -> dict[str, np.ndarray]:
-    """Run one job of tests/run_reference_utils.py on ``arrays``; returns its output arrays."""
-    src, dst = os.path.join(folder, f"{job}-in.npz"), os.path.join(folder, f"{job}-out.npz")
-    np.savez(src, job=np.array(job), **arrays)
-    proc = subprocess.run(
-        [sys.executable, RUNNER, reference_dir, src, dst], capture_output=True, text=True, timeout=300, cwd=folder
-    )
-    assert proc.returncode == 0, proc.stderr[-4000:]
-    with np.load(dst) as z:
-        return {k: z[k] for k in z.files}
 
 
 def _configs_json(configs: list[cams.CameraConfig]) -> np.ndarray:
@@ -61,11 +44,10 @@ def _simulated_views(task: str, seed: int, scale: float, actions: int = 0) -> tu
 
 
 def _compare_fusion(
-    reference_dir: str, folder, views: list, configs: list[cams.CameraConfig], bounds: np.ndarray = hm.BOUNDS
+    reference_utils, folder, views: list, configs: list[cams.CameraConfig], bounds: np.ndarray = hm.BOUNDS
 ) -> dict[str, float]:
     """Fuse ``views`` with ours and the reference's rule; assert equal maps; return the measured errors."""
-    ref = call_reference(
-        reference_dir,
+    ref = reference_utils(
         folder,
         "fuse",
         color=np.stack([c for c, _ in views]),
@@ -104,13 +86,13 @@ def _compare_fusion(
         ("stack-block-pyramid", 0, 1.0, 0),  # full resolution, the reference's own
     ],
 )
-def test_fused_maps_equal_the_reference(reference_dir, tmp_path, task, seed, scale, actions):
+def test_fused_maps_equal_the_reference(reference_utils, tmp_path, task, seed, scale, actions):
     views, configs = _simulated_views(task, seed, scale, actions)
-    errors = _compare_fusion(reference_dir, tmp_path, views, configs)
+    errors = _compare_fusion(reference_utils, tmp_path, views, configs)
     assert errors == {"height_max_abs_error": 0.0, "colour_cells_differing": 0}
 
 
-def test_fusion_rule_on_ties_black_and_edges(reference_dir, tmp_path):
+def test_fusion_rule_on_ties_black_and_edges(reference_utils, tmp_path):
     """Synthetic views that the rule's details decide: flat planes (many points of equal z in one cell,
     so the sort's order of ties picks the colour), black points, points on the lower z bound, no
     readings; two cameras looking down, one tilted; with the simulator's bounds and with moved ones."""
@@ -131,12 +113,12 @@ def test_fusion_rule_on_ties_black_and_edges(reference_dir, tmp_path):
         depth[rng.random((rows, cols)) < 0.02] = 0.0  # no reading
         views.append((color, depth))
     for bounds in (hm.BOUNDS, hm.BOUNDS + np.array([[0.0123], [-0.007], [-0.01]])):
-        errors = _compare_fusion(reference_dir, tmp_path, views, [down, tilted], bounds)
+        errors = _compare_fusion(reference_utils, tmp_path, views, [down, tilted], bounds)
         assert errors == {"height_max_abs_error": 0.0, "colour_cells_differing": 0}
 
 
-def test_cameras_are_the_reference_cameras(reference_dir, tmp_path):
-    ref = json.loads(str(call_reference(reference_dir, tmp_path, "cameras")["configs"]))
+def test_cameras_are_the_reference_cameras(reference_utils, tmp_path):
+    ref = json.loads(str(reference_utils(tmp_path, "cameras")["configs"]))
     for ours, theirs in [
         *zip(cams.realsense_d415(), ref["realsense"], strict=True),
         (cams.oracle_camera(), ref["oracle"][0]),
@@ -151,7 +133,7 @@ def test_cameras_are_the_reference_cameras(reference_dir, tmp_path):
         assert theirs["noise"] is False
 
 
-def test_pixel_conversions_equal_the_reference(reference_dir, tmp_path):
+def test_pixel_conversions_equal_the_reference(reference_utils, tmp_path):
     rng = np.random.default_rng(1)
     rows, cols = hm.heightmap_shape()
     height = rng.uniform(0, 0.28, size=(rows, cols)).astype(np.float32)
@@ -165,8 +147,7 @@ def test_pixel_conversions_equal_the_reference(reference_dir, tmp_path):
             np.array([hm.pix_to_xyz((u, v), 0.0) for u, v in pix[:500]]) + np.nextafter(hm.PIXEL_SIZE / 2, 0),
         ]
     )
-    ref = call_reference(
-        reference_dir,
+    ref = reference_utils(
         tmp_path,
         "pixels",
         pix=pix,
@@ -180,7 +161,7 @@ def test_pixel_conversions_equal_the_reference(reference_dir, tmp_path):
     np.testing.assert_array_equal(np.array([hm.xyz_to_pix(x) for x in xyz]), ref["pix"])
 
 
-def test_rotations_equal_the_reference(reference_dir, tmp_path):
+def test_rotations_equal_the_reference(reference_utils, tmp_path):
     """yaw_to_quat is the reference's eulerXYZ_to_quatXYZW((0, 0, yaw)), quat_to_yaw its
     quatXYZW_to_eulerXYZ(q)[2], and the pose of place-rotation bin k (the reference's act():
     eulerXYZ_to_quatXYZW((0, 0, -k * 2 pi / n))) is yaw_to_quat(-k * 2 pi / n)."""
@@ -192,7 +173,7 @@ def test_rotations_equal_the_reference(reference_dir, tmp_path):
     quats /= np.linalg.norm(quats, axis=1, keepdims=True)
     n_rotations = 36
     theta = np.arange(n_rotations) * 2 * np.pi / n_rotations
-    ref = call_reference(reference_dir, tmp_path, "rotations", euler=euler, quat=quats, theta=theta)
+    ref = reference_utils(tmp_path, "rotations", euler=euler, quat=quats, theta=theta)
 
     np.testing.assert_array_equal(np.array([tf.yaw_to_quat(y) for y in yaws]), ref["quat"][: len(yaws)])
     ours_yaw = np.array([tf.quat_to_yaw(q) for q in quats])
