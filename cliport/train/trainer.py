@@ -21,13 +21,13 @@ from torch import nn
 from torch.utils.data import DataLoader, RandomSampler
 from tqdm import tqdm
 
-from cliport.agents.base import optimizer_step
+from cliport.agents.base import optimizer_step, save_weights
 from cliport.env.environment import expected_renderer
 from cliport.errors import RunDirError, UserError
 from cliport.train.config import TrainConfig
 from cliport.train.resume import load_optimizer_state
 from cliport.utils.device import bf16_native, resolve_device
-from cliport.utils.files import load_torch, save_torch, write_json
+from cliport.utils.files import link_or_copy, load_torch, save_torch, write_json
 from cliport.utils.run_dir import RunDir
 
 
@@ -224,6 +224,9 @@ def train(
                 "torch_rng": torch.get_rng_state(),
             }
         save_torch(payload, run.checkpoint(kind))
+        if kind != "last":
+            save_weights(payload, run.weights(kind), step=int(kind))  # safetensors beside the .pt
+            link_or_copy(run.weights(kind), run.model_weights)  # RUN/model.safetensors: the newest one
         if kind != "last" and validator is not None:
             validator.checkpoint_saved(int(kind), run.checkpoint(kind))
 
