@@ -439,15 +439,14 @@ class PickPlaceAgent(nn.Module):
         sources unless ``weights`` maps a source field to another (as :func:`cliport.agents.load_agent`).
         Called on an agent class (``TwoStreamAgent.from_pretrained``), the weights must be of that agent.
         """
-        from cliport.agents import agent_from_payload, read_checkpoint, read_weights
+        from cliport.agents import agent_class, agent_from_payload, read_checkpoint, read_weights
         from cliport.errors import CheckpointError
 
         path = pretrained_file(str(source), checkpoint)
         payload = read_weights(path) if path.endswith(".safetensors") else read_checkpoint(path)
-        agent = agent_from_payload(payload, path, device=device, weights=weights)
-        if not isinstance(agent, cls):
-            raise CheckpointError(f"{path} holds a {agent.name} agent, not a {cls.name or cls.__name__} one")
-        return agent
+        if not issubclass(agent_class(payload["agent"]), cls):  # before any pretrained part is loaded
+            raise CheckpointError(f"{path} holds a {payload['agent']} agent, not a {cls.name or cls.__name__} one")
+        return agent_from_payload(payload, path, device=device, weights=weights)
 
 
 def pretrained_file(source: str, checkpoint: str | int | None = None) -> str:
