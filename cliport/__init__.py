@@ -63,3 +63,13 @@ def _install_checkout_finder() -> None:
 
 
 _install_checkout_finder()
+
+
+def _register_gymnasium_envs() -> None:
+    # Only gymnasium is imported here: the environments load the simulator when gymnasium.make builds one.
+    from cliport.gym_registration import register_envs
+
+    register_envs()
+
+
+_register_gymnasium_envs()

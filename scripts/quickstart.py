@@ -6,11 +6,13 @@ see ``Task.place_yaw_informative``), 400 steps at batch 1, then evaluates 20 tes
 simulators: about 4 minutes on 2 cores (the choices and what each trades are in docs/quickstart.md). On a CUDA GPU
 it trains at the published width instead. Defaults: ``configs/quickstart.toml``. Either way it saves the
 heatmaps and a GIF of a test episode the agent solved. Everything goes to out/quickstart/; results.json
-sums it up. Run it again and it resumes: finished demos and training are kept.
+sums it up, and ``tensorboard --logdir out/quickstart`` shows the training curves and the test score. Run it
+again and it resumes: finished demos and training are kept.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import time
@@ -30,6 +32,7 @@ from cliport.train.recipes import recipe_names
 from cliport.train.trainer import load_run_config, train
 from cliport.utils.config import read_defaults
 from cliport.utils.files import write_json
+from cliport.utils.tensorboard import log_result, summary_writer
 
 AGENT = "transporter_only"
 
@@ -122,6 +125,8 @@ def main() -> None:
     result = evaluate(agent, args.task, "test", args.episodes, camera_scale=args.camera_scale)
     solved = [row for row in result["episodes"] if row["total_reward"] > 0.99]
     timings["evaluation_s"] = time.perf_counter() - mark
+    with contextlib.closing(summary_writer(os.path.join(run_dir, "eval", "tensorboard"))) as tensorboard:
+        log_result(tensorboard, f"eval/{args.task}/test", result, args.steps)  # beside training's curves
 
     seed = solved[0]["seed"] if solved else result["episodes"][0]["seed"]
     print(f"4/4 heatmaps and a GIF of test episode {seed}" + ("" if solved else " (none was solved)"))

@@ -93,16 +93,9 @@ def make_agent(name: str, config: AgentConfig | dict[str, Any] | None = None) ->
     return cls(config)
 
 
-def read_checkpoint(path: str | os.PathLike[str]) -> dict[str, Any]:
-    """A checkpoint's payload (see ``PickPlaceAgent.checkpoint_payload``); CheckpointError if unusable, or
-    written with another checkpoint format (format 1: the networks from before reference parity)."""
+def _check_format(path: str | os.PathLike[str], written: int) -> None:
     from cliport.agents.base import CHECKPOINT_FORMAT
-    from cliport.utils.files import load_torch
 
-    payload = load_torch(path)
-    if not isinstance(payload, dict) or not {"agent", "config", "state_dict"} <= set(payload):
-        raise CheckpointError(f"{path} is not a cliport checkpoint (no agent, config and weights)")
-    written = payload.get("format", 1)
     if written < CHECKPOINT_FORMAT:
         raise CheckpointError(
             f"{path} was written by cliport before 0.2.0 (checkpoint format {written}), whose networks differ from "
@@ -110,27 +103,62 @@ def read_checkpoint(path: str | os.PathLike[str]) -> dict[str, Any]:
         )
     if written > CHECKPOINT_FORMAT:
         raise CheckpointError(f"{path} was written by a newer cliport (checkpoint format {written}); upgrade cliport")
+
+
+def read_checkpoint(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """A checkpoint's payload (see ``PickPlaceAgent.checkpoint_payload``); CheckpointError if unusable, or
+    written with another checkpoint format (format 1: the networks from before reference parity)."""
+    from cliport.utils.files import load_torch
+
+    payload = load_torch(path)
+    if not isinstance(payload, dict) or not {"agent", "config", "state_dict"} <= set(payload):
+        raise CheckpointError(f"{path} is not a cliport checkpoint (no agent, config and weights)")
+    _check_format(path, payload.get("format", 1))
     return payload
 
 
-def load_agent(
+def read_weights(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """A safetensors weights file (``save_weights``, ``save_pretrained``, a run's ``model.safetensors``) as a
+    checkpoint payload (``agent``, ``config``, ``clip_weights``, ``weight_sources``, ``state_dict``, and ``step``
+    where recorded), read without pickle; CheckpointError if unusable or not written by cliport."""
+    import json
+
+    from cliport.utils.files import load_safetensors
+
+    tensors, metadata = load_safetensors(path)
+    if not {"format", "agent", "config"} <= set(metadata):
+        raise CheckpointError(f"{path} is not a cliport weights file (no agent and config in its metadata)")
+    try:
+        written = int(metadata["format"])
+        payload: dict[str, Any] = {
+            "format": written,
+            "cliport_version": metadata.get("cliport_version"),
+            "agent": metadata["agent"],
+            "config": json.loads(metadata["config"]),
+            "clip_weights": json.loads(metadata.get("clip_weights", "null")),
+            "weight_sources": json.loads(metadata.get("weight_sources", "{}")),
+            "state_dict": tensors,
+        }
+        if "step" in metadata:
+            payload["step"] = int(metadata["step"])
+    except ValueError as e:  # json.JSONDecodeError is a ValueError
+        raise CheckpointError(f"{path} has malformed cliport metadata: {e}") from e
+    _check_format(path, written)
+    return payload
+
+
+def agent_from_payload(
+    payload: dict[str, Any],
     path: str | os.PathLike[str],
     device: str | torch.device = "cpu",
     weights: dict[str, str] | None = None,
-    clip_weights: str | None = None,
 ) -> PickPlaceAgent:
-    """Rebuild an agent from a checkpoint written by ``save_checkpoint``.
-
-    Pretrained parts are reloaded from the sources the checkpoint records unless ``weights`` maps a
-    source field (e.g. ``{"clip_weights": "/other/path/RN50.pt"}``) to another one; a field the agent
-    does not have is ignored. ``clip_weights`` is shorthand for that field.
-    """
-    payload = read_checkpoint(path)
+    """Build the agent a checkpoint payload (``read_checkpoint`` or ``read_weights``) describes and load its
+    weights; ``weights`` overrides recorded pretrained sources (see :func:`load_agent`). ``path`` names the
+    file in errors."""
     cls = agent_class(payload["agent"])
     config = dict(payload["config"])
     overrides = dict(weights or {})
-    if clip_weights is not None:
-        overrides["clip_weights"] = clip_weights
     for field in cls.weight_sources:
         recorded = payload.get("weight_sources", {}).get(field) or payload.get(field)
         config[field] = overrides.get(field) or recorded or config.get(field)
@@ -145,15 +173,35 @@ def load_agent(
     return agent.to(device)
 
 
+def load_agent(
+    path: str | os.PathLike[str],
+    device: str | torch.device = "cpu",
+    weights: dict[str, str] | None = None,
+    clip_weights: str | None = None,
+) -> PickPlaceAgent:
+    """Rebuild an agent from a checkpoint written by ``save_checkpoint``.
+
+    Pretrained parts are reloaded from the sources the checkpoint records unless ``weights`` maps a
+    source field (e.g. ``{"clip_weights": "/other/path/RN50.pt"}``) to another one; a field the agent
+    does not have is ignored. ``clip_weights`` is shorthand for that field.
+    """
+    overrides = dict(weights or {})
+    if clip_weights is not None:
+        overrides["clip_weights"] = clip_weights
+    return agent_from_payload(read_checkpoint(path), path, device, overrides)
+
+
 __all__ = [
     "AgentConfig",
     "PickPlaceAgent",
     "agent_class",
+    "agent_from_payload",
     "agent_names",
     "config_classes",
     "load_agent",
     "make_agent",
     "make_config",
     "read_checkpoint",
+    "read_weights",
     "register_agent",
 ]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import json
 import math
 import os
 from collections.abc import Callable
@@ -22,10 +23,13 @@ from cliport.models.encoders import FrozenEncoder
 from cliport.models.heads import PickHead, PlaceHead
 from cliport.models.preprocess import raw_input
 from cliport.utils.device import bf16_native
-from cliport.utils.files import save_torch
+from cliport.utils.files import save_safetensors, save_torch, write_json
 
 #: 2 since the networks compute the reference CLIPort's functions (cliport 0.2.0); 1 before.
 CHECKPOINT_FORMAT = 2
+#: What ``save_pretrained`` writes into a folder: the trainable weights and a description of the agent.
+PRETRAINED_WEIGHTS = "model.safetensors"
+PRETRAINED_CONFIG = "config.json"
 DEVICE_OPTIONS = ("channels_last", "bf16_clip", "fused_adam", "act_graphs")
 LossFn = Callable[[dict[str, Any]], tuple[torch.Tensor, dict[str, float]]]
 
@@ -46,6 +50,29 @@ def optimizer_step(
     loss.backward()
     optimizer.step()
     return info
+
+
+def weights_metadata(payload: dict[str, Any], step: int | None = None) -> dict[str, str]:
+    """The string metadata of a safetensors weights file: a checkpoint payload's (see
+    :meth:`PickPlaceAgent.checkpoint_payload`) agent, config and weight sources (JSON), its format and version,
+    and the training step when known."""
+    metadata = {
+        "format": str(payload["format"]),
+        "cliport_version": str(payload.get("cliport_version", "")),
+        "agent": payload["agent"],
+        "config": json.dumps(payload["config"]),
+        "clip_weights": json.dumps(payload.get("clip_weights")),
+        "weight_sources": json.dumps(payload.get("weight_sources", {})),
+    }
+    if step is not None:
+        metadata["step"] = str(int(step))
+    return metadata
+
+
+def save_weights(payload: dict[str, Any], path: str | os.PathLike[str], step: int | None = None) -> None:
+    """Write a checkpoint payload's trainable weights as a safetensors file (no pickle), its agent, config and
+    weight sources in the file's metadata, atomically. ``cliport.agents.read_weights`` reads it back."""
+    save_safetensors(payload["state_dict"], path, weights_metadata(payload, step))
 
 
 class PickPlaceAgent(nn.Module):
@@ -395,3 +422,82 @@ class PickPlaceAgent(nn.Module):
     def save_checkpoint(self, path: str | os.PathLike[str]) -> None:
         """Write agent name, config, weight sources and trainable weights, atomically."""
         save_torch(self.checkpoint_payload(), path)
+
+    def save_pretrained(self, folder: str | os.PathLike[str]) -> str:
+        """Write ``folder/model.safetensors`` (the trainable weights; agent, config and weight sources in its
+        metadata, no pickle) and ``folder/config.json`` (the same description as JSON); returns the folder.
+        Frozen pretrained parts are not written: they are reloaded from the recorded sources.
+        :meth:`from_pretrained` loads the folder. A training run's folder is refused (its config.json is the
+        run's; its ``model.safetensors`` is written by training)."""
+        from cliport.errors import RunDirError
+
+        config_path = os.path.join(folder, PRETRAINED_CONFIG)
+        if os.path.isfile(config_path):
+            with open(config_path) as f:
+                existing = json.load(f)
+            if isinstance(existing, dict) and "task" in existing:
+                raise RunDirError(f"{folder} holds a training run: save_pretrained into another folder")
+        payload = self.checkpoint_payload()
+        save_weights(payload, os.path.join(folder, PRETRAINED_WEIGHTS))
+        description = {k: payload[k] for k in ("agent", "config", "clip_weights", "weight_sources")}
+        write_json(config_path, {**description, "format": CHECKPOINT_FORMAT, "cliport_version": __version__})
+        return str(folder)
+
+    @classmethod
+    def from_pretrained(
+        cls,
+        source: str | os.PathLike[str],
+        checkpoint: str | int | None = None,
+        device: str | torch.device = "cpu",
+        weights: dict[str, str] | None = None,
+    ) -> PickPlaceAgent:
+        """An agent from a run folder, ``hf://org/name[@revision]``, a :meth:`save_pretrained` folder or a
+        weights file (``.safetensors``, or a ``.pt`` checkpoint).
+
+        In a folder, ``checkpoint`` None reads ``model.safetensors`` (in a run: the newest scheduled
+        checkpoint; in a pushed repo: the pushed one); runs written before safetensors existed give their newest
+        scheduled ``.pt`` checkpoint instead. ``checkpoint`` "best" (by val.json), "last" or a step picks a
+        checkpoint of a run (its ``.safetensors`` where present, else its ``.pt``). Safetensors are read without
+        pickle; ``.pt`` files with torch's weights-only loader. Pretrained parts are reloaded from the recorded
+        sources unless ``weights`` maps a source field to another (as :func:`cliport.agents.load_agent`).
+        Called on an agent class (``TwoStreamAgent.from_pretrained``), the weights must be of that agent.
+        """
+        from cliport.agents import agent_class, agent_from_payload, read_checkpoint, read_weights
+        from cliport.errors import CheckpointError
+
+        path = pretrained_file(str(source), checkpoint)
+        payload = read_weights(path) if path.endswith(".safetensors") else read_checkpoint(path)
+        if not issubclass(agent_class(payload["agent"]), cls):  # before any pretrained part is loaded
+            raise CheckpointError(f"{path} holds a {payload['agent']} agent, not a {cls.name or cls.__name__} one")
+        return agent_from_payload(payload, path, device=device, weights=weights)
+
+
+def pretrained_file(source: str, checkpoint: str | int | None = None) -> str:
+    """The weights file :meth:`PickPlaceAgent.from_pretrained` reads for ``source`` and ``checkpoint``;
+    RunDirError / ConfigError naming the problem."""
+    from cliport.errors import ConfigError, RunDirError
+    from cliport.utils.run_dir import LAST, RunDir
+
+    if source.startswith("hf://"):
+        # Hub runs are fetched by the deployment layer's resolver (the Hugging Face cache, offline aware).
+        from cliport.deploy.hub import resolve_run_dir
+
+        source = resolve_run_dir(source)
+    if os.path.isfile(source):
+        if checkpoint is not None:
+            raise ConfigError(f"checkpoint={checkpoint!r} needs a run folder, not the file {source}")
+        return source
+    if not os.path.isdir(source):
+        raise RunDirError(f"no run folder or weights file at {source}")
+    run = RunDir(source)
+    if checkpoint is None:
+        if os.path.isfile(run.model_weights):
+            return run.model_weights
+        steps = run.checkpoint_steps()  # a run from before safetensors weights: its newest scheduled checkpoint
+        if not steps:
+            raise RunDirError(f"{source} holds no {PRETRAINED_WEIGHTS} and no scheduled checkpoints")
+        return run.checkpoint(steps[-1])
+    (step,) = run.resolve(str(checkpoint), run.best_step() if checkpoint == "best" else None, allow_all=False)
+    if step == LAST:
+        return run.checkpoint(LAST)
+    return run.weights(step) if os.path.isfile(run.weights(step)) else run.checkpoint(step)

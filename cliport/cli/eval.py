@@ -57,6 +57,7 @@ def main(argv: list[str] | None = None) -> None:
     from cliport.utils.device import resolve_device
     from cliport.utils.files import read_json, write_json
     from cliport.utils.run_dir import RunDir
+    from cliport.utils.tensorboard import log_result, summary_writer
 
     config = load(EvalConfig, "eval", given_flags(args, dests))
     if args.lang is not None and not args.lang.strip():
@@ -86,6 +87,7 @@ def main(argv: list[str] | None = None) -> None:
     weights = weight_overrides(args)
     engines: dict[str, EvalEngine] = {}  # one per task, its workers kept across checkpoints (--checkpoint all)
     env_config = EnvConfig.defaults(camera_scale=camera_scale, renderer=renderer)
+    events, tensorboard = os.path.join(out, "tensorboard"), None  # the summaries as TensorBoard scalars
     with contextlib.ExitStack() as stack:
         for which in checkpoints_to_run(args.run_dir, config.checkpoint):
             path = run.checkpoint(which)
@@ -127,6 +129,10 @@ def main(argv: list[str] | None = None) -> None:
                 result.update(checkpoint=which, checkpoint_file=path, **agent.describe(), run_dir=source)
                 result["recipe"] = run_config.recipe  # how the evaluated weights were trained
                 write_json(os.path.join(out, f"{name}-{config.mode}-{which}.json"), result)
+                # "last" is drawn at the run's final step (where a finished run's last.pt was saved).
+                step = run_config.n_steps if which == "last" else int(which)
+                tensorboard = tensorboard or stack.enter_context(contextlib.closing(summary_writer(events)))
+                log_result(tensorboard, f"eval/{name}/{config.mode}", result, step)
                 summary = {k: v for k, v in result.items() if k != "episodes"}
                 print(json.dumps(summary))
 

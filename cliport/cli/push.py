@@ -12,10 +12,12 @@ from cliport.cli.common import OneLineParser, run_cli
 def _parser() -> argparse.ArgumentParser:
     parser = OneLineParser(
         prog="cliport-push",
-        description="Upload a training run to a Hugging Face Hub model repo: config.json, val.json, the chosen "
-        "checkpoint(s) under checkpoints/ (trained weights only, no optimiser state, never frozen pretrained "
-        "weights), the evaluation JSONs under eval/ and a generated README.md model card. The repo is a run "
-        "folder: cliport-eval --run-dir hf://org/name reads it back.",
+        description="Upload a training run to a Hugging Face Hub model repo: config.json, model.safetensors (the "
+        "pushed checkpoint's trained weights as safetensors, loadable without pickle; the val-selected one when "
+        "pushed, else the newest), val.json, the chosen checkpoint(s) under checkpoints/ (trained weights only, no "
+        "optimiser state, never frozen pretrained weights), the evaluation JSONs under eval/ and a generated "
+        "README.md model card. The repo is a run folder: cliport-eval --run-dir hf://org/name reads it back, "
+        "PickPlaceAgent.from_pretrained('hf://org/name') loads its model.safetensors.",
     )
     parser.add_argument("--run-dir", required=True, help="a cliport-train run folder")
     parser.add_argument("--repo", required=True, help="the Hub model repo, org/name")

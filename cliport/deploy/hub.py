@@ -1,7 +1,8 @@
 """Sharing trained runs on the Hugging Face Hub: a pushed repo IS a run folder.
 
-:func:`build_hub_folder` assembles what ``cliport-push`` uploads (config.json, val.json, the chosen
-checkpoints under ``checkpoints/``, the evaluation JSONs under ``eval/`` and a ``README.md`` model card);
+:func:`build_hub_folder` assembles what ``cliport-push`` uploads (config.json, ``model.safetensors``: the
+pushed checkpoint's weights without pickle, val.json, the chosen checkpoints under ``checkpoints/``, the
+evaluation JSONs under ``eval/`` and a ``README.md`` model card);
 :func:`resolve_run_dir` turns ``hf://org/name[@revision]`` into a local folder from the Hugging Face cache
 (downloading when online), so every command that reads a run accepts either.
 """
@@ -99,7 +100,7 @@ def _chosen_checkpoints(run: layout.RunDir, which: str) -> list[int | str]:
 
 
 def _copy_checkpoint(src: str, dst: str) -> dict[str, Any]:
-    """Copy a checkpoint without the training state (optimiser, RNG); its payload."""
+    """Copy a checkpoint without the training state (optimiser, RNG); its payload (training state included)."""
     from cliport.agents import read_checkpoint
     from cliport.utils.files import save_torch
 
@@ -111,8 +112,19 @@ def _copy_checkpoint(src: str, dst: str) -> dict[str, Any]:
     return payload
 
 
+def _main_checkpoint(chosen: list[int | str], best: int | None) -> int | str:
+    """The checkpoint whose weights become the repo's ``model.safetensors``: the val-selected one where it is
+    pushed, else the newest scheduled one, else ``last``."""
+    if best in chosen:
+        return best  # type: ignore[return-value]
+    steps = [s for s in chosen if s != layout.LAST]
+    return max(steps) if steps else chosen[0]  # type: ignore[type-var]
+
+
 def build_hub_folder(run_dir: str, out: str, repo_id: str, which: str = "best") -> str:
     """Write the folder ``cliport-push`` uploads into ``out`` (a run folder in itself) and return it."""
+    from cliport.agents.base import save_weights
+
     parse_hub_ref(repo_id)
     run = layout.RunDir(run_dir)
     if not os.path.isdir(run_dir):
@@ -127,9 +139,11 @@ def build_hub_folder(run_dir: str, out: str, repo_id: str, which: str = "best") 
     shutil.copyfile(run.config, dest.config)
     if os.path.exists(run.val):
         shutil.copyfile(run.val, dest.val)
-    payload: dict[str, Any] = {}
-    for step in chosen:
-        payload = _copy_checkpoint(run.checkpoint(step), dest.checkpoint(step))
+    payloads = {step: _copy_checkpoint(run.checkpoint(step), dest.checkpoint(step)) for step in chosen}
+    main = _main_checkpoint(chosen, run.best_step())
+    payload = payloads[main]
+    step = main if main != layout.LAST else payload.get("trainer", {}).get("step")
+    save_weights(payload, dest.model_weights, step=step)  # what from_pretrained("hf://...") reads
     evals = sorted(glob.glob(os.path.join(run.eval_dir, "*.json")))
     if evals:
         os.makedirs(dest.eval_dir, exist_ok=True)
@@ -161,6 +175,7 @@ def model_card(
 ) -> str:
     """The README.md of a pushed run: YAML front matter, what it is, its scores and how to use it."""
     agent, task = config.get("agent", "?"), config.get("task", "?")
+    main = _main_checkpoint(chosen, val.get("best_step") if val else None)
     tags = ["cliport", "robotics", "pick-and-place", "imitation-learning", str(agent), str(task)]
     lines = ["---", "library_name: cliport", "tags:", *[f"- {t}" for t in dict.fromkeys(tags)], "---", ""]
     lines += [
@@ -234,9 +249,15 @@ def model_card(
         f"(offline: `HF_HUB_OFFLINE=1` after `hf download {repo_id}`).",
         "",
         "```python",
+        "from cliport.agents import PickPlaceAgent",
+        f'agent = PickPlaceAgent.from_pretrained("hf://{repo_id}")  # model.safetensors, read without pickle',
         "from cliport.deploy import Predictor",
         f'predictor = Predictor("hf://{repo_id}"' + (f', checkpoint="{pick.split()[-1]}"' if pick else "") + ")",
         "```",
+        "",
+        f"`model.safetensors` holds the trained weights of checkpoint {main} (safetensors: no pickle; the agent, its "
+        "config and the pretrained weight sources are in its metadata and `config.json`); "
+        "`safetensors.torch.load_file` reads it without cliport.",
         "",
     ]
     return "\n".join(lines)

@@ -282,12 +282,14 @@ class Environment:
 
     def render_cameras(self) -> list[dict[str, np.ndarray]]:
         """Colour (H, W, 3) uint8 and depth (H, W) float32 from each of the three cameras."""
-        out = []
+        return [self.render_camera(cfg) for cfg in self.camera_configs]
+
+    def render_camera(self, config: cameras.CameraConfig) -> dict[str, np.ndarray]:
+        """Colour (H, W, 3) uint8 and depth (H, W) float32 from one camera (e.g. ``camera_configs[0]``,
+        the front one)."""
         with self._quiet():
-            for cfg in self.camera_configs:
-                color, depth, _ = cameras.render(cfg, self.client, self.renderer)
-                out.append({"color": color, "depth": depth})
-        return out
+            color, depth, _ = cameras.render(config, self.client, self.renderer)
+        return {"color": color, "depth": depth}
 
     def _quiet(self) -> contextlib.AbstractContextManager:
         """The EGL plugin prints a banner on stdout at its first frames; keep it off the console."""

@@ -2,6 +2,7 @@
 
 ``RUN/val.json`` is rewritten atomically after each checkpoint, so an interrupted validation keeps what
 it finished and a re-run does only the missing checkpoints; it records the renderer the episodes used.
+Each checkpoint's score and success, with their 95% intervals, also go to TensorBoard (``RUN/tensorboard/val/``).
 :class:`SimulatorValidator` is what ``cliport-train`` and the study hand to the trainer.
 """
 
@@ -20,9 +21,10 @@ import torch
 
 from cliport.env.environment import EnvConfig
 from cliport.evaluation.engine import DEFAULT_STEP_TIMEOUT, POLL_SECONDS, EvalEngine, resolve_workers
-from cliport.evaluation.evaluate import evaluate
+from cliport.evaluation.evaluate import evaluate, summarise
 from cliport.utils.files import read_json, write_json
 from cliport.utils.run_dir import RunDir
+from cliport.utils.tensorboard import log_result, summary_writer
 
 log = logging.getLogger(__name__)
 
@@ -59,6 +61,8 @@ def validate_run(
     n_workers = resolve_workers(workers, n_episodes, "--val-workers")
     names = tasks.resolve(task)
     with contextlib.ExitStack() as stack:
+        tensorboard = summary_writer(run.tensorboard_val)
+        stack.callback(tensorboard.close)
         # One task: its workers live across checkpoints. A group starts each task's workers per checkpoint
         # rather than keeping workers x tasks processes alive.
         engines = {}
@@ -78,7 +82,18 @@ def validate_run(
                 torch.cuda.empty_cache()  # beside training, the memory is training's again
             scores = [e["mean_score"] for e in evaluated]
             _record_renderer(results, evaluated[0]["renderer"], run.val)
-            results["checkpoints"][str(step)] = {"mean_score": round(sum(scores) / len(scores), 2), "per_task": scores}
+            # Every task has n_episodes, so the pooled episodes' mean is the mean over tasks; their intervals too.
+            pooled = summarise(task, "val", [row for e in evaluated for row in e["episodes"]])
+            results["checkpoints"][str(step)] = {
+                "mean_score": round(sum(scores) / len(scores), 2),
+                "per_task": scores,
+                **{k: pooled[k] for k in ("ci95", "success_rate", "success_ci95")},
+            }
+            log_result(tensorboard, "val", pooled, step)
+            if len(evaluated) > 1:
+                for name, e in zip(names, evaluated, strict=True):
+                    log_result(tensorboard, f"val/{name}", e, step)
+            tensorboard.flush()
             best = max(results["checkpoints"].items(), key=lambda kv: (kv[1]["mean_score"], -int(kv[0])))
             results["best_step"], results["best_score"] = int(best[0]), best[1]["mean_score"]
             write_json(run.val, results)

@@ -22,14 +22,15 @@ from torch import nn
 from torch.utils.data import DataLoader, RandomSampler
 from tqdm import tqdm
 
-from cliport.agents.base import optimizer_step
+from cliport.agents.base import optimizer_step, save_weights
 from cliport.env.environment import expected_renderer
 from cliport.errors import RunDirError, UserError
 from cliport.train.config import TrainConfig
 from cliport.train.resume import load_optimizer_state
 from cliport.utils.device import bf16_native, resolve_device
-from cliport.utils.files import load_torch, save_torch, write_json
+from cliport.utils.files import link_or_copy, load_torch, save_torch, write_json
 from cliport.utils.run_dir import RunDir
+from cliport.utils.tensorboard import log_gpu_memory, summary_writer
 
 
 class TrainError(RunDirError):
@@ -94,15 +95,6 @@ def _distributed() -> tuple[int, int, int]:
     if torch.cuda.is_available():
         torch.cuda.set_device(local)
     return dist.get_rank(), world, local
-
-
-def _tensorboard_writer(path: str):
-    """A TensorBoard SummaryWriter when the tensorboard package is installed, else None (CSV only)."""
-    try:
-        from torch.utils.tensorboard import SummaryWriter
-    except ImportError:
-        return None
-    return SummaryWriter(path)
 
 
 def _batches(loader: DataLoader) -> Iterator[dict[str, Any]]:
@@ -244,10 +236,13 @@ def train(
                 "torch_rng": torch.get_rng_state(),
             }
         save_torch(payload, run.checkpoint(kind))
+        if kind != "last":
+            save_weights(payload, run.weights(kind), step=int(kind))  # safetensors beside the .pt
+            link_or_copy(run.weights(kind), run.model_weights)  # RUN/model.safetensors: the newest one
         if kind != "last" and validator is not None:
             validator.checkpoint_saved(int(kind), run.checkpoint(kind))
 
-    tensorboard = _tensorboard_writer(run.tensorboard) if rank == 0 else None
+    tensorboard = summary_writer(run.tensorboard, purge_step=step + 1 if step else None) if rank == 0 else None
     bar = tqdm(total=config.n_steps, initial=step, desc=f"train {config.agent}", disable=not progress or rank != 0)
     start, window_start, window_steps = time.perf_counter(), time.perf_counter(), 0
     sums = {"loss": 0.0, "pick_loss": 0.0, "place_loss": 0.0}
@@ -280,6 +275,8 @@ def train(
                     if tensorboard is not None:
                         for key in ("loss", "pick_loss", "place_loss", "samples_per_second"):
                             tensorboard.add_scalar(f"train/{key}", row[key], step)
+                        tensorboard.add_scalar("train/learning_rate", optimizer.param_groups[0]["lr"], step)
+                        log_gpu_memory(tensorboard, device, step)
                     bar.set_postfix(loss=f"{row['loss']:.3f}", steps_s=f"{row['steps_per_second']:.2f}")
                     sums = dict.fromkeys(sums, 0.0)
                     window_start, window_steps = time.perf_counter(), 0

@@ -3,11 +3,16 @@
 ::
 
     RUN/config.json                      the resolved train config (agent, env and validation settings)
-    RUN/metrics.csv                      step, losses, throughput (RUN/tensorboard/ when tensorboard is installed)
+    RUN/model.safetensors                the newest scheduled checkpoint's trainable weights (safetensors, no
+                                         pickle; agent, config and weight sources in its metadata)
+    RUN/metrics.csv                      step, losses, throughput
+    RUN/tensorboard/                     TensorBoard events of training (losses, learning rate, samples/s, GPU memory)
+    RUN/tensorboard/val/                 TensorBoard events of validation (score and success with intervals)
     RUN/checkpoints/step-001000.pt ...   scheduled checkpoints (agent weights + config + weight sources)
+    RUN/checkpoints/step-001000.safetensors ...  the same trainable weights as safetensors
     RUN/checkpoints/last.pt              rolling resume point (also optimiser, step and RNG state)
     RUN/val.json                         validation success of every scheduled checkpoint and the best one
-    RUN/eval/TASK-MODE-CKPT.json         evaluation results (cliport-eval)
+    RUN/eval/TASK-MODE-CKPT.json         evaluation results (cliport-eval); RUN/eval/tensorboard/ their events
 """
 
 from __future__ import annotations
@@ -18,7 +23,9 @@ from dataclasses import dataclass
 
 CONFIG = "config.json"
 METRICS = "metrics.csv"
+MODEL_WEIGHTS = "model.safetensors"
 TENSORBOARD = "tensorboard"
+TENSORBOARD_VAL = "val"
 CHECKPOINTS = "checkpoints"
 LAST = "last"
 VAL = "val.json"
@@ -45,6 +52,16 @@ class RunDir:
         return os.path.join(self.root, TENSORBOARD)
 
     @property
+    def tensorboard_val(self) -> str:
+        """Validation's events: a folder of their own, as another process writes them during training."""
+        return os.path.join(self.root, TENSORBOARD, TENSORBOARD_VAL)
+
+    @property
+    def model_weights(self) -> str:
+        """``RUN/model.safetensors``: the newest scheduled checkpoint's trainable weights."""
+        return os.path.join(self.root, MODEL_WEIGHTS)
+
+    @property
     def val(self) -> str:
         return os.path.join(self.root, VAL)
 
@@ -56,6 +73,10 @@ class RunDir:
         """``checkpoints/step-NNNNNN.pt`` of a step, or ``checkpoints/last.pt`` for ``"last"``."""
         name = f"{LAST}.pt" if step == LAST else f"step-{int(step):06d}.pt"
         return os.path.join(self.root, CHECKPOINTS, name)
+
+    def weights(self, step: int) -> str:
+        """``checkpoints/step-NNNNNN.safetensors``: a scheduled checkpoint's trainable weights as safetensors."""
+        return os.path.join(self.root, CHECKPOINTS, f"step-{int(step):06d}.safetensors")
 
     def checkpoint_steps(self) -> list[int]:
         """Steps of the scheduled checkpoints present, sorted."""

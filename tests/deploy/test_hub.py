@@ -88,7 +88,7 @@ def _files(folder) -> set[str]:
 def test_push_local_dir_is_a_run_folder_with_a_model_card(trained_run, tmp_path):
     out = tmp_path / "push"
     _push(["--run-dir", trained_run, "--repo", "org/tiny", "--local-dir", str(out)])
-    assert _files(out) == {"README.md", "config.json", "val.json", "checkpoints/step-000002.pt",
+    assert _files(out) == {"README.md", "config.json", "model.safetensors", "val.json", "checkpoints/step-000002.pt",
                            f"eval/{TASK}-test-2.json"}  # fmt: skip
     assert RunDir(str(out)).is_run() and RunDir(str(out)).best_step() == 2
     card = (out / "README.md").read_text()
@@ -98,8 +98,27 @@ def test_push_local_dir_is_a_run_folder_with_a_model_card(trained_run, tmp_path)
     for text in ["| agent | `transporter_only` |", f"| task | `{TASK}` |", "| demos | 10 |", "| steps | 2 |",
                  "| 2 (best) | 37.5 |", f"| {TASK} | test | 2 | 4 | 41.25 (10.0-72.5) | 25% |",
                  "cliport-eval --run-dir hf://org/tiny --mode test", "cliport-predict --run-dir hf://org/tiny",
-                 "## Pretrained parts\n\nNone"]:  # fmt: skip
+                 "## Pretrained parts\n\nNone", 'PickPlaceAgent.from_pretrained("hf://org/tiny")',
+                 "`model.safetensors` holds the trained weights of checkpoint 2"]:  # fmt: skip
         assert text in card, text
+
+
+def test_pushed_safetensors_are_the_chosen_checkpoints_weights_without_pickle(trained_run, tmp_path):
+    """The run predates safetensors weights (only .pt files): the push writes them from the checkpoint."""
+    from safetensors import safe_open
+    from safetensors.torch import load_file
+
+    assert not os.path.exists(RunDir(trained_run).model_weights)
+    out = tmp_path / "push"
+    _push(["--run-dir", trained_run, "--repo", "org/tiny", "--checkpoint", "last", "--local-dir", str(out)])
+    weights = load_file(out / "model.safetensors")
+    expected = torch.load(RunDir(trained_run).checkpoint("last"), weights_only=True)["state_dict"]
+    assert weights.keys() == expected.keys()
+    for key, value in expected.items():
+        torch.testing.assert_close(weights[key], value, rtol=0, atol=0)
+    with safe_open(str(out / "model.safetensors"), framework="pt") as f:
+        metadata = f.metadata()
+    assert metadata["agent"] == "transporter_only" and metadata["step"] == "2"  # last.pt's trainer step
 
 
 def test_push_all_strips_training_state(trained_run, tmp_path):
@@ -150,6 +169,13 @@ def test_hub_run_resolves_from_the_cache_and_acts_like_the_original(trained_run,
     a, b = original.act(obs), predictor.agent.act(obs)
     assert a["pick_pix"] == b["pick_pix"] and a["place_pix"] == b["place_pix"] and a["place_rot"] == b["place_rot"]
     np.testing.assert_array_equal(a["place_heatmap"], b["place_heatmap"])
+
+    from cliport.agents import PickPlaceAgent
+
+    c = PickPlaceAgent.from_pretrained("hf://org/tiny").act(obs)  # model.safetensors of the pushed checkpoint
+    assert (a["pick_pix"], a["place_pix"], a["place_bin"]) == (c["pick_pix"], c["place_pix"], c["place_bin"])
+    np.testing.assert_array_equal(a["pick_heatmap"], c["pick_heatmap"])
+    np.testing.assert_array_equal(a["place_heatmap"], c["place_heatmap"])
 
 
 def test_uncached_hub_run_is_one_line(capsys):

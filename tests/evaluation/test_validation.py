@@ -106,6 +106,7 @@ def test_validation_holds_one_agent_at_a_time(trained_run, tmp_path, monkeypatch
 
     import cliport.agents
     from cliport.evaluation import validation
+    from cliport.evaluation.evaluate import summarise
 
     loaded: list[weakref.ref] = []
     real = cliport.agents.load_agent
@@ -118,7 +119,7 @@ def test_validation_holds_one_agent_at_a_time(trained_run, tmp_path, monkeypatch
 
     def evaluate(agent, *args, **kwargs):  # the episodes do not matter here: one act() uses the agent
         agent.act({"color": np.zeros((64, 32, 3), np.uint8), "height": np.zeros((64, 32), np.float32)})
-        return {"mean_score": 0.0, "renderer": "tiny"}
+        return {**summarise(VAL_TASK, "val", [{"seed": 1, "total_reward": 0.0, "actions": 1}]), "renderer": "tiny"}
 
     monkeypatch.setattr(cliport.agents, "load_agent", load_agent)
     monkeypatch.setattr(validation, "evaluate", evaluate)
