@@ -22,9 +22,12 @@ def make_run(
 ) -> str:
     """A run folder holding config.json, checkpoints/step-000001.pt, last.pt and val.json (best = 1).
 
-    ``sharpen_on``: an observation (``color``, ``height``) the agent is first trained on for a few steps,
-    towards picking its highest pixel and placing it back there, so that its heatmaps have clear maxima
-    that a small change of the input does not move (an untrained agent's are nearly flat).
+    ``sharpen_on``: an observation (``color``, ``height``) the agent is first trained on until both
+    cross-entropies are below 0.5, towards picking the first (raster order) cell of its top surface and
+    placing it back there, so that its heatmaps have clear maxima that a small change of the input does not
+    move (an untrained agent's are nearly flat). A corner of the surface, not its argmax: the top is a
+    plateau of equal cells that a convolution cannot tell apart, and 40 steps towards one of them left a
+    3 % peak that 0.1 mm depth steps moved 170 pixels (CI failed on it).
     """
     import numpy as np
     import torch
@@ -43,7 +46,7 @@ def make_run(
     agent = make_agent(agent_name, config.agent_config)
     if sharpen_on is not None:
         height = sharpen_on["height"]
-        pick = np.unravel_index(int(np.argmax(height)), height.shape)
+        pick = tuple(int(v) for v in np.argwhere(height >= height.max() - 0.002)[0])
         batch = {
             "color": torch.from_numpy(sharpen_on["color"])[None],
             "height": torch.from_numpy(height)[None],
@@ -53,8 +56,12 @@ def make_run(
             "lang": ["insert the block"],
         }
         optimizer = torch.optim.Adam(agent.trainable_parameters(), lr=1e-3)
-        for _ in range(40):
-            agent.train_step(batch, optimizer)
+        for _ in range(200):
+            info = agent.train_step(batch, optimizer)
+            if info["pick_loss"] < 0.5 and info["place_loss"] < 0.5:
+                break
+        else:
+            raise AssertionError(f"the fixture agent did not learn its one sample in 200 steps: {info}")
     agent.save_checkpoint(run.checkpoint(1))
     agent.save_checkpoint(run.checkpoint("last"))
     write_json(run.val, {"best_step": 1, "checkpoints": {"1": {"mean_score": 0.0}}})
