@@ -1,4 +1,7 @@
-"""Shared pytest set-up: slow and GPU tests are skipped unless asked for."""
+"""Shared pytest set-up. Three tiers: the default run (the README's test command); ``e2e`` tests (end to end
+and paper-size: skipped unless ``--e2e``; CI runs them as its second command, ``pytest --e2e -m e2e``);
+``slow`` tests (run only with ``--runslow``). GPU tests skip where CUDA is absent. Tests that build paper-size
+nets share one xdist group, so that ``-n 2 --dist loadgroup`` never holds two of them in memory at once."""
 
 from __future__ import annotations
 
@@ -17,6 +20,9 @@ from cliport.env.transforms import yaw_to_quat
 def pytest_addoption(parser: pytest.Parser) -> None:
     parser.addoption("--runslow", action="store_true", default=False, help="also run tests marked slow")
     parser.addoption(
+        "--e2e", action="store_true", default=False, help="also run the end-to-end and paper-size tests (marked e2e)"
+    )
+    parser.addoption(
         "--reference-dir",
         default=None,
         help="folder of the reference CLIPort code for the parity tests (default: $CLIPORT_REFERENCE_DIR)",
@@ -25,10 +31,15 @@ def pytest_addoption(parser: pytest.Parser) -> None:
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     skip_slow = pytest.mark.skip(reason="slow: pass --runslow to run")
+    skip_e2e = pytest.mark.skip(reason="end to end: pass --e2e to run (CI runs them as its second command)")
     cuda = None
     for item in items:
         if "slow" in item.keywords and not config.getoption("--runslow"):
             item.add_marker(skip_slow)
+        if "e2e" in item.keywords and not config.getoption("--e2e"):
+            item.add_marker(skip_e2e)
+        if "paper_size" in item.keywords:
+            item.add_marker(pytest.mark.xdist_group("paper_size"))
         if "gpu" in item.keywords:
             if cuda is None:
                 import torch

@@ -51,7 +51,7 @@ def _trained_agent(name: str) -> PickPlaceAgent:
     return agent
 
 
-@pytest.mark.parametrize("name", ["transporter_only", "two_stream"])
+@pytest.mark.parametrize("name", ["transporter_only", pytest.param("two_stream", marks=pytest.mark.e2e)])
 def test_act_batch_equals_act(name: str) -> None:
     agent = _trained_agent(name)
     observations = _observations(3)

@@ -140,6 +140,7 @@ def test_transporter_fits_pick_and_place() -> None:
     assert _fit(agent, [(RED_BLOCK, GREEN_BOWL, 3, "")], max_steps=120, check_every=10) is not None
 
 
+@pytest.mark.e2e
 def test_clip_only_fits_pick_and_place() -> None:
     """The semantic stream alone (random CLIP, RGB only) learns where to pick and place, with the rotation.
 
@@ -256,6 +257,8 @@ def test_two_stream_learns_two_instructions_on_one_image() -> None:
 
 
 @pytest.mark.parametrize("name", ["transporter_only", "two_stream"])
+@pytest.mark.e2e
+@pytest.mark.paper_size
 def test_real_size_forward(name: str) -> None:
     cfg = {"clip_weights": "random"} if name == "two_stream" else {}
     agent = make_agent(name, cfg)

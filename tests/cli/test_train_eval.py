@@ -14,6 +14,8 @@ from cliport.train import trainer
 from cliport.utils.files import load_torch
 from cliport.utils.run_dir import RunDir
 
+pytestmark = [pytest.mark.e2e]
+
 TASK = "block-insertion"
 TINY = ["--width", "0.125", "--agent-option", "n_rotations=4", "--agent-option", "crop_size=32"]
 

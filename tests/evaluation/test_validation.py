@@ -19,6 +19,7 @@ def _train(data_dir: str, run_dir: str, mode: str) -> None:
     run_cli(lambda: train_cli.main(argv))
 
 
+@pytest.mark.e2e
 def test_validation_beside_training_matches_validation_after_it(tmp_path, make_synthetic_dataset):
     make_synthetic_dataset(str(tmp_path), n_episodes=2)
     after, beside = str(tmp_path / "after"), str(tmp_path / "beside")

@@ -23,6 +23,8 @@ from cliport.agents import make_agent
 from cliport.agents.base import PickPlaceAgent
 from cliport.models import reference_names
 
+pytestmark = [pytest.mark.e2e, pytest.mark.paper_size]
+
 AGENTS = ["transporter_only", "two_stream", "clip_only"]
 LANG = "put the blue block in the green bowl"
 

@@ -10,6 +10,8 @@ import matplotlib
 import pytest
 import torch
 
+pytestmark = [pytest.mark.e2e]
+
 NOTEBOOKS = sorted(glob.glob(os.path.join(os.path.dirname(__file__), "..", "..", "notebooks", "*.ipynb")))
 
 

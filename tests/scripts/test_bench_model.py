@@ -13,6 +13,7 @@ def _run(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, str(SCRIPT), *args], capture_output=True, text=True, timeout=900)
 
 
+@pytest.mark.e2e
 def test_reports_rates_memory_and_flops_as_json():
     out = _run(*TINY, "--batch-sizes", "1", "2", "--flops")
     assert out.returncode == 0, out.stderr
@@ -25,6 +26,7 @@ def test_reports_rates_memory_and_flops_as_json():
     assert 2.0 < result["train_gflop_per_sample"] / result["act_gflop"] < 4.0
 
 
+@pytest.mark.e2e
 def test_profile_and_act_batch():
     out = _run(*TINY, "--batch-sizes", "1", "--profile", "--act-batch", "2")
     assert out.returncode == 0, out.stderr

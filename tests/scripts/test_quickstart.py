@@ -6,6 +6,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "quickstart.py"
 TINY = ["--demos", "1", "--steps", "2", "--episodes", "1", "--width", "0.125", "--camera-scale", "0.5"]
 
@@ -20,6 +22,7 @@ def _one_error_line(out: subprocess.CompletedProcess) -> str:
     return err[0]
 
 
+@pytest.mark.e2e
 def test_a_tiny_run_goes_through_every_phase_and_resumes(tmp_path):
     out = _run("--out", str(tmp_path), *TINY)
     assert out.returncode == 0, out.stderr

@@ -18,6 +18,8 @@ from cliport.agents import load_agent
 from cliport.train.convert import convert_checkpoint
 from cliport.utils.run_dir import RunDir
 
+pytestmark = [pytest.mark.e2e, pytest.mark.paper_size]
+
 TASK = "put-block-in-bowl-seen-colors"
 SEEDS = (0, 2)
 

@@ -26,6 +26,8 @@ from cliport.train.convert import convert_checkpoint
 from cliport.train.recipes import get_recipe
 from cliport.utils.run_dir import RunDir
 
+pytestmark = [pytest.mark.e2e, pytest.mark.paper_size]
+
 TASK = "put-block-in-bowl-seen-colors"
 SEEDS = (0, 1, 2)  # one sample each: three training steps
 # Fewer rotations than the paper's 36 keep the reference's place step affordable on a CPU; the arithmetic
