@@ -1,6 +1,6 @@
 """packing-{seen,unseen}-objects-{seq,group}: pack named everyday objects into a brown box.
 
-The object set and its seen/unseen split come from ``packing_assets`` (built-in set, or a user folder
+The object set and its seen/unseen split come from ``packing_object_set`` (built-in set, or a user folder
 named by $CLIPORT_PACKING_OBJECTS). The container's interior is split into cells (k-d split); a packed
 object's target is its cell's centre; the zone metric counts the object's box inside the container.
 
@@ -18,17 +18,8 @@ import numpy as np
 from cliport.env.transforms import at_height, multiply
 from cliport.tasks import register
 from cliport.tasks.base import GoalStep
-from cliport.tasks.packing_assets import (
-    FLOOR_THICKNESS,
-    ObjectSpec,
-    ZoneOracleMixin,
-    build_object,
-    centred_parts,
-    container,
-    kd_split,
-    object_set,
-    split_objects,
-)
+from cliport.tasks.packing_assets import FLOOR_THICKNESS, ZoneOracleMixin, container, kd_split
+from cliport.tasks.packing_object_set import ObjectSpec, build_object, centred_parts, object_set, split_objects
 
 CELL_MIN_SIDE = 0.085  # every object's footprint diagonal is below this
 WALL_HEIGHT = 0.03

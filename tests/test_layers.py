@@ -9,12 +9,14 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 
 # package -> cliport packages it must never import (at module level or inside functions)
 FORBIDDEN = {
-    "env": ["torch", "cliport.models", "cliport.agents", "cliport.data", "cliport.train", "cliport.evaluation"],
+    "env": ["torch", "cliport.models", "cliport.agents", "cliport.data", "cliport.train", "cliport.evaluation",
+            "cliport.deploy"],
     "utils": ["cliport.env", "cliport.models", "cliport.agents", "cliport.data", "cliport.train",
-              "cliport.evaluation", "cliport.cli", "cliport.study"],
+              "cliport.evaluation", "cliport.cli", "cliport.study", "cliport.deploy"],
     "models": ["cliport.agents", "cliport.data", "cliport.train", "cliport.evaluation", "cliport.cli"],
     "agents": ["cliport.data", "cliport.train", "cliport.evaluation", "cliport.cli", "cliport.study"],
-    "data": ["cliport.agents", "cliport.models", "cliport.train", "cliport.evaluation", "cliport.cli"],
+    "data": ["cliport.agents", "cliport.models", "cliport.train", "cliport.evaluation", "cliport.cli",
+             "cliport.deploy"],
     "train": ["cliport.evaluation", "cliport.cli", "cliport.study"],
     "evaluation": ["cliport.train", "cliport.cli", "cliport.study", "cliport.deploy"],
     "deploy": ["cliport.train", "cliport.cli", "cliport.study"],

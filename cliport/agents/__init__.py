@@ -17,11 +17,12 @@ from typing import Any
 import torch
 
 from cliport.agents.base import PickPlaceAgent
+from cliport.agents.checkpoint import read_checkpoint, read_weights
 from cliport.agents.config import AgentConfig
 from cliport.errors import CheckpointError, ConfigError, UnknownNameError
 
 _REGISTRY: dict[str, type[PickPlaceAgent]] = {}
-_NOT_AGENTS = {"base", "config"}
+_NOT_AGENTS = {"base", "checkpoint", "config", "decode", "device_options", "loss"}
 _discovered = False
 
 
@@ -91,60 +92,6 @@ def make_agent(name: str, config: AgentConfig | dict[str, Any] | None = None) ->
             raise TypeError(f"{name} needs a {cls.config_class.__name__} or a dict, got {type(config).__name__}")
         config = make_config(name, config)
     return cls(config)
-
-
-def _check_format(path: str | os.PathLike[str], written: int) -> None:
-    from cliport.agents.base import CHECKPOINT_FORMAT
-
-    if written < CHECKPOINT_FORMAT:
-        raise CheckpointError(
-            f"{path} was written by cliport before 0.2.0 (checkpoint format {written}), whose networks differ from "
-            "the reference CLIPort's (docs/parity.md) and cannot load these weights; retrain it"
-        )
-    if written > CHECKPOINT_FORMAT:
-        raise CheckpointError(f"{path} was written by a newer cliport (checkpoint format {written}); upgrade cliport")
-
-
-def read_checkpoint(path: str | os.PathLike[str]) -> dict[str, Any]:
-    """A checkpoint's payload (see ``PickPlaceAgent.checkpoint_payload``); CheckpointError if unusable, or
-    written with another checkpoint format (format 1: the networks from before reference parity)."""
-    from cliport.utils.files import load_torch
-
-    payload = load_torch(path)
-    if not isinstance(payload, dict) or not {"agent", "config", "state_dict"} <= set(payload):
-        raise CheckpointError(f"{path} is not a cliport checkpoint (no agent, config and weights)")
-    _check_format(path, payload.get("format", 1))
-    return payload
-
-
-def read_weights(path: str | os.PathLike[str]) -> dict[str, Any]:
-    """A safetensors weights file (``save_weights``, ``save_pretrained``, a run's ``model.safetensors``) as a
-    checkpoint payload (``agent``, ``config``, ``clip_weights``, ``weight_sources``, ``state_dict``, and ``step``
-    where recorded), read without pickle; CheckpointError if unusable or not written by cliport."""
-    import json
-
-    from cliport.utils.files import load_safetensors
-
-    tensors, metadata = load_safetensors(path)
-    if not {"format", "agent", "config"} <= set(metadata):
-        raise CheckpointError(f"{path} is not a cliport weights file (no agent and config in its metadata)")
-    try:
-        written = int(metadata["format"])
-        payload: dict[str, Any] = {
-            "format": written,
-            "cliport_version": metadata.get("cliport_version"),
-            "agent": metadata["agent"],
-            "config": json.loads(metadata["config"]),
-            "clip_weights": json.loads(metadata.get("clip_weights", "null")),
-            "weight_sources": json.loads(metadata.get("weight_sources", "{}")),
-            "state_dict": tensors,
-        }
-        if "step" in metadata:
-            payload["step"] = int(metadata["step"])
-    except ValueError as e:  # json.JSONDecodeError is a ValueError
-        raise CheckpointError(f"{path} has malformed cliport metadata: {e}") from e
-    _check_format(path, written)
-    return payload
 
 
 def agent_from_payload(

@@ -1,78 +1,30 @@
-"""Pick-and-place agent shared by both architectures: loss, training step, acting and checkpoints."""
+"""The pick-and-place agent every architecture shares, composed of its parts' modules: the objective and
+optimiser step (:mod:`~cliport.agents.loss`), targets and actions between poses and maps
+(:mod:`~cliport.agents.decode`), the per-device speed settings (:mod:`~cliport.agents.device_options`) and
+the weights on disk (:mod:`~cliport.agents.checkpoint`)."""
 
 from __future__ import annotations
 
 import contextlib
-import json
-import math
 import os
-from collections.abc import Callable
 from typing import Any, ClassVar
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 from torch import nn
 
 from cliport import __version__
+from cliport.agents.checkpoint import CHECKPOINT_FORMAT, pretrained_file, read_payload, save_pretrained_folder
 from cliport.agents.config import AgentConfig
-from cliport.env.heightmap import BOUNDS, PIXEL_SIZE, pix_to_xyz
-from cliport.env.transforms import yaw_to_quat
+from cliport.agents.decode import actions, decode_pick, decode_place, pose_pixels, pose_yaw
+from cliport.agents.device_options import DEVICE_OPTIONS, apply_layout_and_precision, option_applies
+from cliport.agents.loss import optimizer_step, pick_place_loss
+from cliport.errors import CheckpointError
 from cliport.models.cuda_graphs import GraphedForward, GraphMemory
 from cliport.models.encoders import FrozenEncoder
 from cliport.models.heads import PickHead, PlaceHead
 from cliport.models.preprocess import raw_input
-from cliport.utils.device import bf16_native
-from cliport.utils.files import save_safetensors, save_torch, write_json
-
-#: 2 since the networks compute the reference CLIPort's functions (cliport 0.2.0); 1 before.
-CHECKPOINT_FORMAT = 2
-#: What ``save_pretrained`` writes into a folder: the trainable weights and a description of the agent.
-PRETRAINED_WEIGHTS = "model.safetensors"
-PRETRAINED_CONFIG = "config.json"
-DEVICE_OPTIONS = ("channels_last", "bf16_clip", "fused_adam", "act_graphs")
-LossFn = Callable[[dict[str, Any]], tuple[torch.Tensor, dict[str, float]]]
-
-
-def optimizer_step(
-    loss_fn: LossFn,
-    batch: dict[str, Any],
-    optimizer: torch.optim.Optimizer,
-    autocast: contextlib.AbstractContextManager[Any] | None = None,
-) -> dict[str, float]:
-    """The one training step of the project: zero grads, loss (under ``autocast``), backward, step.
-
-    ``loss_fn`` is an agent's ``compute_loss`` or a DDP-wrapped module with the same call signature.
-    """
-    optimizer.zero_grad(set_to_none=True)
-    with autocast or contextlib.nullcontext():
-        loss, info = loss_fn(batch)
-    loss.backward()
-    optimizer.step()
-    return info
-
-
-def weights_metadata(payload: dict[str, Any], step: int | None = None) -> dict[str, str]:
-    """The string metadata of a safetensors weights file: a checkpoint payload's (see
-    :meth:`PickPlaceAgent.checkpoint_payload`) agent, config and weight sources (JSON), its format and version,
-    and the training step when known."""
-    metadata = {
-        "format": str(payload["format"]),
-        "cliport_version": str(payload.get("cliport_version", "")),
-        "agent": payload["agent"],
-        "config": json.dumps(payload["config"]),
-        "clip_weights": json.dumps(payload.get("clip_weights")),
-        "weight_sources": json.dumps(payload.get("weight_sources", {})),
-    }
-    if step is not None:
-        metadata["step"] = str(int(step))
-    return metadata
-
-
-def save_weights(payload: dict[str, Any], path: str | os.PathLike[str], step: int | None = None) -> None:
-    """Write a checkpoint payload's trainable weights as a safetensors file (no pickle), its agent, config and
-    weight sources in the file's metadata, atomically. ``cliport.agents.read_weights`` reads it back."""
-    save_safetensors(payload["state_dict"], path, weights_metadata(payload, step))
+from cliport.utils.files import save_torch
 
 
 class PickPlaceAgent(nn.Module):
@@ -147,9 +99,7 @@ class PickPlaceAgent(nn.Module):
         self.device_options["act_graphs"] = enabled
 
     def _use(self, option: str) -> bool:
-        if not (self.device_options[option] and self.device.type == "cuda"):
-            return False
-        return option != "bf16_clip" or bf16_native(self.device)
+        return option_applies(self.device_options, option, self.device)
 
     def active_device_options(self) -> dict[str, bool]:
         """The speed settings in effect on the agent's device now (what was asked for, where it applies)."""
@@ -159,12 +109,8 @@ class PickPlaceAgent(nn.Module):
         self._pick_graphs.clear()
         self._place_graphs.clear()
         self._graph_memory.reset()
-        layout = torch.channels_last if self._use("channels_last") else torch.contiguous_format
-        for head in (self.pick, self.place):
-            head.to(memory_format=layout)
-            head.input_memory_format = layout
-        if self.encoder is not None:
-            self.encoder.set_image_dtype(torch.bfloat16 if self._use("bf16_clip") else torch.float32)
+        heads = (self.pick, self.place)
+        apply_layout_and_precision(heads, self.encoder, self._use("channels_last"), self._use("bf16_clip"))
 
     def _apply(self, fn, recurse: bool = True):  # type: ignore[no-untyped-def]
         # Every .to() / .cuda() / .float() re-allocates the parameters: recapture graphs, and bring the
@@ -221,17 +167,8 @@ class PickPlaceAgent(nn.Module):
         rotation bin (B,) of the relative yaw, as the place head decodes it."""
         pose0 = torch.as_tensor(pose0, dtype=torch.float64)
         pose1 = torch.as_tensor(pose1, dtype=torch.float64)
-
-        def pixels(pose: torch.Tensor) -> torch.Tensor:
-            u = torch.round((pose[:, 1] - BOUNDS[1, 0]) / PIXEL_SIZE).clamp(0, hw[0] - 1)
-            v = torch.round((pose[:, 0] - BOUNDS[0, 0]) / PIXEL_SIZE).clamp(0, hw[1] - 1)
-            return torch.stack([u, v], dim=1).long()
-
-        def yaw(pose: torch.Tensor) -> torch.Tensor:  # quat_to_yaw: the reference's labels' z angle
-            x, y, z, w = pose[:, 3], pose[:, 4], pose[:, 5], pose[:, 6]
-            return torch.atan2(2 * (x * y + w * z), 1 - 2 * (x * x + z * z))
-
-        return pixels(pose0), pixels(pose1), self.place.rotation_bin(yaw(pose1) - yaw(pose0))
+        rotation = self.place.rotation_bin(pose_yaw(pose1) - pose_yaw(pose0))
+        return pose_pixels(pose0, hw), pose_pixels(pose1, hw), rotation
 
     def compute_loss(self, batch: dict[str, Any], loss: str = "sample_ce") -> tuple[torch.Tensor, dict[str, float]]:
         """Cross-entropy over all pick pixels plus over all place pixels x rotations, averaged over the batch.
@@ -258,18 +195,7 @@ class PickPlaceAgent(nn.Module):
             targets = (batch["pick_pix"], batch["place_pix"], batch["place_rot"])
         pick_pix, place_pix, place_rot = (move(t).long() for t in targets)
         pick_logits, place_logits = self.logits(x, pick_pix, batch.get("lang"))
-        h, w = x.shape[-2:]
-        pick_target = pick_pix[:, 0] * w + pick_pix[:, 1]
-        place_target = (place_rot * h + place_pix[:, 0]) * w + place_pix[:, 1]
-        pick_loss = F.cross_entropy(pick_logits.flatten(1).float(), pick_target)
-        place_loss = F.cross_entropy(place_logits.flatten(1).float(), place_target)
-        total = pick_loss + place_loss
-        info = {"loss": total.item(), "pick_loss": pick_loss.item(), "place_loss": place_loss.item()}
-        if loss == "cell_mean":
-            total = pick_loss / pick_logits[0].numel() + place_loss / place_logits[0].numel()
-        elif loss != "sample_ce":
-            raise ValueError(f"unknown loss {loss!r}; choose cell_mean or sample_ce")
-        return total, info
+        return pick_place_loss(pick_logits, place_logits, pick_pix, place_pix, place_rot, loss)
 
     def train_step(
         self,
@@ -278,8 +204,8 @@ class PickPlaceAgent(nn.Module):
         autocast: contextlib.AbstractContextManager[Any] | None = None,
         loss: str = "sample_ce",
     ) -> dict[str, float]:
-        """One optimiser step on `batch` with the ``loss`` of :meth:`compute_loss` (see :func:`optimizer_step`);
-        returns the loss terms."""
+        """One optimiser step on `batch` with the ``loss`` of :meth:`compute_loss` (see
+        :func:`~cliport.agents.loss.optimizer_step`); returns the loss terms."""
         self.train()
         return optimizer_step(lambda b: self.compute_loss(b, loss), batch, optimizer, autocast)
 
@@ -333,45 +259,11 @@ class PickPlaceAgent(nn.Module):
         color = torch.from_numpy(np.stack([np.asarray(obs["color"]) for obs in observations]))
         x = raw_input(color.to(device), torch.from_numpy(np.stack(heights)).to(device))
         sentence = self._act_sentence(instructions)
-        b, h, w = len(observations), *heights[0].shape
         graphs = self._graphs_apply(x)
-
-        pick_forward = self._pick_graphs if graphs else self._pick_forward
-        pick_logits = pick_forward(x, sentence)
-        pick_prob = F.softmax(pick_logits.reshape(b, h * w).float(), dim=1)
-        pick_index = torch.argmax(pick_prob, dim=1)
-        pick_pix = torch.stack([pick_index // w, pick_index % w], dim=1)
-
-        place_forward = self._place_graphs if graphs else self._place_forward
-        place_logits = place_forward(x, pick_pix, sentence)
-        n_rot = place_logits.shape[1]
-        place_prob = F.softmax(place_logits.reshape(b, n_rot * h * w).float(), dim=1)
-        place_index = torch.argmax(place_prob, dim=1)
-        place_heatmap = place_prob.reshape(b, n_rot, h, w).amax(dim=1)
-
-        pick_pix_np = pick_pix.cpu().numpy()
-        place_index_np = place_index.cpu().numpy()
-        pick_heatmaps = pick_prob.reshape(b, h, w).cpu().numpy().astype(np.float32)
-        place_heatmaps = place_heatmap.cpu().numpy().astype(np.float32)
-        results = []
-        for i in range(b):
-            pick = (int(pick_pix_np[i, 0]), int(pick_pix_np[i, 1]))
-            rot_bin, rest = divmod(int(place_index_np[i]), h * w)
-            place = (rest // w, rest % w)
-            place_yaw = self.place.bin_yaw(rot_bin)
-            results.append(
-                {
-                    "pose0": (pix_to_xyz(pick, heights[i]), yaw_to_quat(0.0)),
-                    "pose1": (pix_to_xyz(place, heights[i]), yaw_to_quat(place_yaw)),
-                    "pick_pix": pick,
-                    "place_pix": place,
-                    "place_rot": place_yaw % (2 * math.pi),
-                    "place_bin": rot_bin,
-                    "pick_heatmap": pick_heatmaps[i],
-                    "place_heatmap": place_heatmaps[i],
-                }
-            )
-        return results
+        pick_prob, pick_pix = decode_pick((self._pick_graphs if graphs else self._pick_forward)(x, sentence))
+        place_logits = (self._place_graphs if graphs else self._place_forward)(x, pick_pix, sentence)
+        place_index, place_heatmap = decode_place(place_logits)
+        return actions(pick_pix, pick_prob, place_index, place_heatmap, heights, self.place.bin_yaw)
 
     def _frozen_prefixes(self) -> list[str]:
         modules = self.named_modules(remove_duplicate=False)  # the shared encoder sits under several names
@@ -429,19 +321,7 @@ class PickPlaceAgent(nn.Module):
         Frozen pretrained parts are not written: they are reloaded from the recorded sources.
         :meth:`from_pretrained` loads the folder. A training run's folder is refused (its config.json is the
         run's; its ``model.safetensors`` is written by training)."""
-        from cliport.errors import RunDirError
-
-        config_path = os.path.join(folder, PRETRAINED_CONFIG)
-        if os.path.isfile(config_path):
-            with open(config_path) as f:
-                existing = json.load(f)
-            if isinstance(existing, dict) and "task" in existing:
-                raise RunDirError(f"{folder} holds a training run: save_pretrained into another folder")
-        payload = self.checkpoint_payload()
-        save_weights(payload, os.path.join(folder, PRETRAINED_WEIGHTS))
-        description = {k: payload[k] for k in ("agent", "config", "clip_weights", "weight_sources")}
-        write_json(config_path, {**description, "format": CHECKPOINT_FORMAT, "cliport_version": __version__})
-        return str(folder)
+        return save_pretrained_folder(self.checkpoint_payload(), folder)
 
     @classmethod
     def from_pretrained(
@@ -462,42 +342,10 @@ class PickPlaceAgent(nn.Module):
         sources unless ``weights`` maps a source field to another (as :func:`cliport.agents.load_agent`).
         Called on an agent class (``TwoStreamAgent.from_pretrained``), the weights must be of that agent.
         """
-        from cliport.agents import agent_class, agent_from_payload, read_checkpoint, read_weights
-        from cliport.errors import CheckpointError
+        from cliport.agents import agent_class, agent_from_payload
 
         path = pretrained_file(str(source), checkpoint)
-        payload = read_weights(path) if path.endswith(".safetensors") else read_checkpoint(path)
+        payload = read_payload(path)
         if not issubclass(agent_class(payload["agent"]), cls):  # before any pretrained part is loaded
             raise CheckpointError(f"{path} holds a {payload['agent']} agent, not a {cls.name or cls.__name__} one")
         return agent_from_payload(payload, path, device=device, weights=weights)
-
-
-def pretrained_file(source: str, checkpoint: str | int | None = None) -> str:
-    """The weights file :meth:`PickPlaceAgent.from_pretrained` reads for ``source`` and ``checkpoint``;
-    RunDirError / ConfigError naming the problem."""
-    from cliport.errors import ConfigError, RunDirError
-    from cliport.utils.run_dir import LAST, RunDir
-
-    if source.startswith("hf://"):
-        # Hub runs are fetched by the deployment layer's resolver (the Hugging Face cache, offline aware).
-        from cliport.deploy.hub import resolve_run_dir
-
-        source = resolve_run_dir(source)
-    if os.path.isfile(source):
-        if checkpoint is not None:
-            raise ConfigError(f"checkpoint={checkpoint!r} needs a run folder, not the file {source}")
-        return source
-    if not os.path.isdir(source):
-        raise RunDirError(f"no run folder or weights file at {source}")
-    run = RunDir(source)
-    if checkpoint is None:
-        if os.path.isfile(run.model_weights):
-            return run.model_weights
-        steps = run.checkpoint_steps()  # a run from before safetensors weights: its newest scheduled checkpoint
-        if not steps:
-            raise RunDirError(f"{source} holds no {PRETRAINED_WEIGHTS} and no scheduled checkpoints")
-        return run.checkpoint(steps[-1])
-    (step,) = run.resolve(str(checkpoint), run.best_step() if checkpoint == "best" else None, allow_all=False)
-    if step == LAST:
-        return run.checkpoint(LAST)
-    return run.weights(step) if os.path.isfile(run.weights(step)) else run.checkpoint(step)

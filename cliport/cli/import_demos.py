@@ -1,6 +1,6 @@
 """cliport-import: convert demonstrations into demonstration files: real ones (RGB-D views and pick/place
 poses, :mod:`cliport.deploy.importer`) or datasets of the reference CLIPort and Ravens (the layout their
-demos.py writes, :mod:`cliport.deploy.ravens`).
+demos.py writes, :mod:`cliport.data.ravens_import`).
 
 The formats are described in those modules and docs/your-scene.md ("Importing real demonstrations",
 "Importing reference datasets").
@@ -56,9 +56,10 @@ def _parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> None:
     args = _parser().parse_args(argv)
-    from cliport.deploy.importer import DemoImportError, import_demos
+    from cliport.data.ravens_import import import_ravens, is_ravens_folder
+    from cliport.deploy.importer import import_demos
     from cliport.deploy.predictor import check_bounds
-    from cliport.deploy.ravens import import_ravens, is_ravens_folder
+    from cliport.errors import DemoImportError
 
     fmt = args.format
     if fmt == "auto":

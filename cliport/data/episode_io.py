@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from cliport.errors import UserError
+from cliport.errors import DemoImportError, UserError
 
 _EPISODE_FILE = re.compile(r"(\d{6})\.npz")
 HEIGHT_UNIT = 1e-4  # metres per stored height unit
@@ -178,3 +178,21 @@ def load_episode(path: str) -> EpisodeData:
     if len(data) == 0:
         raise EpisodeFileError(f"corrupt episode file {path}: no steps")
     return data
+
+
+def kept_import(path: str, source: str) -> bool:
+    """True when ``path`` is a valid episode file imported from ``source`` (a resumed import keeps it); False
+    when it is missing or damaged; DemoImportError when it holds another episode."""
+    if not os.path.exists(path):
+        return False
+    try:
+        check_episode_file(path)
+        meta = read_meta(path)
+    except EpisodeFileError:
+        return False  # truncated or damaged: import it again
+    if not meta.get("imported") or meta.get("source") != source:
+        raise DemoImportError(
+            f"{path} already holds an episode that is not an import of {source} "
+            f"(source {meta.get('source', 'simulated')!r}): use another --data-dir or remove it"
+        )
+    return True

@@ -123,7 +123,7 @@ def _main_checkpoint(chosen: list[int | str], best: int | None) -> int | str:
 
 def build_hub_folder(run_dir: str, out: str, repo_id: str, which: str = "best") -> str:
     """Write the folder ``cliport-push`` uploads into ``out`` (a run folder in itself) and return it."""
-    from cliport.agents.base import save_weights
+    from cliport.agents.checkpoint import save_weights
 
     parse_hub_ref(repo_id)
     run = layout.RunDir(run_dir)

@@ -27,7 +27,7 @@ agents are trained in (``cliport-predict --bounds`` moves predictions back).
 
 Every step.json of DIR is checked before anything is written, and every step of an episode is read and
 fused before its file is written (atomically), so a bad input leaves no file of its own; a problem is a
-:class:`DemoImportError` naming the episode, step and field. Re-running resumes: valid episode files
+:class:`~cliport.errors.DemoImportError` naming the episode, step and field. Re-running resumes: valid episode files
 already imported from the same folder are kept.
 """
 
@@ -42,29 +42,16 @@ from typing import Any
 
 import numpy as np
 
-from cliport.data.episode_io import (
-    EpisodeFileError,
-    check_episode_file,
-    dataset_dir,
-    episode_path,
-    read_meta,
-    save_episode,
-)
-from cliport.data.seeds import episode_seeds
+from cliport.data.episode_io import dataset_dir, episode_path, kept_import, save_episode
+from cliport.data.seeds import MODES, episode_seeds
 from cliport.deploy.scene import SceneError, check_views, fuse_scene, load_cameras, read_color, read_depth
 from cliport.env import heightmap as hm
 from cliport.env.cameras import CameraConfig
-from cliport.errors import UserError
+from cliport.errors import DemoImportError
 
 EPISODE_DIR = re.compile(r"episode-(\d+)")
 STEP_FIELDS = ("rgb", "depth", "pick", "place", "instruction")
 POSE_FIELDS = ("position", "rotation")
-MODES = ("train", "val", "test")
-
-
-class DemoImportError(UserError, ValueError):
-    """A source folder, steps.json or image of an import is unusable; the message names the episode,
-    step and field."""
 
 
 @dataclass
@@ -212,23 +199,6 @@ def convert_episode(episode: SourceEpisode, bounds: np.ndarray = hm.BOUNDS) -> t
             }
         )
     return steps, notes
-
-
-def kept_import(path: str, source: str) -> bool:
-    """True when ``path`` is a valid episode file imported from ``source`` (a resumed import keeps it)."""
-    if not os.path.exists(path):
-        return False
-    try:
-        check_episode_file(path)
-        meta = read_meta(path)
-    except EpisodeFileError:
-        return False  # truncated or damaged: import it again
-    if not meta.get("imported") or meta.get("source") != source:
-        raise DemoImportError(
-            f"{path} already holds an episode that is not an import of {source} "
-            f"(source {meta.get('source', 'simulated')!r}): use another --data-dir or remove it"
-        )
-    return True
 
 
 def import_demos(

@@ -20,8 +20,9 @@ from typing import Any
 import torch
 
 from cliport.env.environment import EnvConfig
-from cliport.evaluation.engine import DEFAULT_STEP_TIMEOUT, POLL_SECONDS, EvalEngine, resolve_workers
+from cliport.evaluation.engine import DEFAULT_STEP_TIMEOUT, EvalEngine, resolve_workers
 from cliport.evaluation.evaluate import evaluate, summarise
+from cliport.evaluation.workers import POLL_SECONDS
 from cliport.utils.files import read_json, write_json
 from cliport.utils.run_dir import RunDir
 from cliport.utils.tensorboard import log_result, summary_writer

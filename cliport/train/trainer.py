@@ -22,7 +22,8 @@ from torch import nn
 from torch.utils.data import DataLoader, RandomSampler
 from tqdm import tqdm
 
-from cliport.agents.base import optimizer_step, save_weights
+from cliport.agents.checkpoint import save_weights
+from cliport.agents.loss import optimizer_step
 from cliport.env.environment import expected_renderer
 from cliport.errors import RunDirError, UserError
 from cliport.train.config import TrainConfig

@@ -340,7 +340,7 @@ def test_bf16_is_undone_off_cuda_and_when_switched_off() -> None:
 
 
 def test_no_bf16_where_the_gpu_lacks_it(monkeypatch) -> None:
-    monkeypatch.setattr("cliport.agents.base.bf16_native", lambda device: False)
+    monkeypatch.setattr("cliport.agents.device_options.bf16_native", lambda device: False)
     agent = make_agent("two_stream", {"width": 0.125, "clip_weights": "random"}).to("cuda")
     assert agent.encoder.image_dtype() == torch.float32 and not agent.active_device_options()["bf16_clip"]
 

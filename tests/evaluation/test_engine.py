@@ -12,8 +12,10 @@ from cliport.data import generate
 from cliport.env.environment import EnvConfig
 from cliport.errors import ConfigError
 from cliport.evaluation import engine as engine_module
+from cliport.evaluation import workers as workers_module
 from cliport.evaluation.engine import ORACLE, EvalEngine, resolve_workers
 from cliport.evaluation.evaluate import evaluate
+from cliport.evaluation.stepper import CRASH_ENV, HANG_ENV
 
 TASK = "block-insertion"
 
@@ -105,9 +107,9 @@ def test_oracle_in_workers_matches_the_serial_oracle():
 
 def test_a_crashed_worker_is_reported_replaced_and_its_episode_rerun(tmp_path, monkeypatch, caplog):
     marker = tmp_path / "crashed"
-    monkeypatch.setenv(engine_module.CRASH_ENV, f"2:{marker}")
+    monkeypatch.setenv(CRASH_ENV, f"2:{marker}")
     finished = []
-    with caplog.at_level(logging.WARNING, logger="cliport.evaluation.engine"):
+    with caplog.at_level(logging.WARNING, logger="cliport.evaluation.workers"):
         with EvalEngine(TASK, "train", EnvConfig.defaults(camera_scale=0.5), workers=2, progress=False) as engine:
             rows = engine.run(ORACLE, [0, 2, 4], on_result=finished.append)
             assert all(w.process.is_alive() for w in engine.workers)
@@ -133,8 +135,8 @@ def test_a_hung_worker_is_killed_logged_replaced_and_its_episode_rerun(tmp_path,
     config = EnvConfig.defaults(camera_scale=0.5)
     with EvalEngine(TASK, "val", config, workers=2, progress=False) as engine:
         clean = engine.run(HeightAgent(), [1, 3, 5])
-    monkeypatch.setenv(engine_module.HANG_ENV, f"3:{tmp_path / 'hung'}")
-    with caplog.at_level(logging.WARNING, logger="cliport.evaluation.engine"):
+    monkeypatch.setenv(HANG_ENV, f"3:{tmp_path / 'hung'}")
+    with caplog.at_level(logging.WARNING, logger="cliport.evaluation.workers"):
         with EvalEngine(TASK, "val", config, workers=2, progress=False, step_timeout=3.0) as engine:
             rows = engine.run(HeightAgent(), [1, 3, 5])
             assert engine.renderer == "tiny" and all(w.process.is_alive() for w in engine.workers)
@@ -155,7 +157,7 @@ def test_ctrl_c_during_hung_workers_stops_everything_within_seconds(tmp_path, mo
     import threading
     import time
 
-    monkeypatch.setenv(engine_module.HANG_ENV, f"1,3:{tmp_path / 'hung'}")
+    monkeypatch.setenv(HANG_ENV, f"1,3:{tmp_path / 'hung'}")
     engine = EvalEngine(TASK, "val", EnvConfig.defaults(camera_scale=0.5), workers=2, progress=False, step_timeout=None)
     engine.start()
     processes = [w.process for w in engine.workers]
@@ -175,4 +177,4 @@ def test_ctrl_c_during_hung_workers_stops_everything_within_seconds(tmp_path, mo
     assert (tmp_path / "hung-1").exists() and (tmp_path / "hung-3").exists()
     assert not any(p.is_alive() for p in processes) and engine.workers == []
     # 4 s until the interrupt, at most POLL_SECONDS until it is seen, then the parallel shutdown.
-    assert elapsed < 4.0 + engine_module.POLL_SECONDS + engine_module.SHUTDOWN_GRACE + 3.5, elapsed
+    assert elapsed < 4.0 + workers_module.POLL_SECONDS + workers_module.SHUTDOWN_GRACE + 3.5, elapsed

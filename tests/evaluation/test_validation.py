@@ -80,13 +80,13 @@ def test_a_hung_simulator_hangs_neither_validation_nor_training(trained_run, tmp
 
     import torch
 
-    from cliport.evaluation import engine as engine_module
+    from cliport.evaluation.stepper import HANG_ENV
     from cliport.evaluation.validation import BackgroundValidator, validate_run
 
     cpu = torch.device("cpu")
     clean = validate_run(_copy_run(trained_run, tmp_path / "clean", (1,)), VAL_TASK, 1, 0.5, cpu, progress=False)
     run_dir = _copy_run(trained_run, tmp_path / "hung", (1,))
-    monkeypatch.setenv(engine_module.HANG_ENV, f"1:{tmp_path / 'hung-marker'}")  # val seed 1, in the grandchild
+    monkeypatch.setenv(HANG_ENV, f"1:{tmp_path / 'hung-marker'}")  # val seed 1, in the grandchild
     validator = BackgroundValidator(run_dir, VAL_TASK, 1, 0.5, cpu, progress=False, workers=1, step_timeout=3.0)
     start = time.monotonic()
     validator.checkpoint_saved(1, RunDir(run_dir).checkpoint(1))

@@ -3,7 +3,7 @@ import pytest
 from cliport import tasks
 from cliport.data.rollout import oracle_policy, run_episode
 from cliport.env.environment import EnvConfig, Environment
-from cliport.tasks.packing_assets import builtin_objects
+from cliport.tasks.packing_object_set import builtin_objects
 
 
 @pytest.mark.parametrize("name", ["packing-seen-objects-seq", "packing-unseen-objects-group"])

@@ -6,7 +6,7 @@ import pytest
 from cliport import tasks
 from cliport.data.rollout import oracle_policy, run_episode
 from cliport.env.environment import EnvConfig, Environment
-from cliport.tasks import packing_assets as pa
+from cliport.tasks import packing_object_set as objset
 
 CUBE_OBJ = """v -1 -1 -1
 v 1 -1 -1
@@ -28,19 +28,19 @@ f 4 1 5 8
 
 
 def test_builtin_set_is_named_and_split():
-    specs = pa.builtin_objects()
+    specs = objset.builtin_objects()
     names = [s.name for s in specs]
     assert len(names) >= 30 and len(set(names)) == len(names)
     seen = [s for s in specs if s.split == "seen"]
     assert 0.6 <= len(seen) / len(specs) <= 0.7
-    assert pa.split_objects(specs, "train", unseen=True) == seen
-    assert all(s.split == "unseen" for s in pa.split_objects(specs, "test", unseen=True))
-    assert pa.split_objects(specs, "test", unseen=False) == seen
+    assert objset.split_objects(specs, "train", unseen=True) == seen
+    assert all(s.split == "unseen" for s in objset.split_objects(specs, "test", unseen=True))
+    assert objset.split_objects(specs, "test", unseen=False) == seen
 
 
 def test_every_builtin_object_fits_a_cell():
-    for spec in pa.builtin_objects():
-        _, half = pa.centred_parts(spec)
+    for spec in objset.builtin_objects():
+        _, half = objset.centred_parts(spec)
         assert max(half[0], half[1]) * 2 < 0.075, spec.name  # fits a cell (side >= 8.5 cm) with room
         assert 0.002 < half[2] < 0.04, spec.name
 
@@ -53,10 +53,10 @@ def _write_cube(path):
 def test_user_folder_of_named_meshes(tmp_path):
     for name in ("rubber_duck", "soup_can", "tea_box"):
         _write_cube(tmp_path / name)
-    specs = pa.load_object_folder(str(tmp_path))
+    specs = objset.load_object_folder(str(tmp_path))
     assert [s.name for s in specs] == ["rubber duck", "soup can", "tea box"]
     assert [s.split for s in specs] == ["seen", "seen", "unseen"]
-    _, half = pa.centred_parts(specs[0])
+    _, half = objset.centred_parts(specs[0])
     assert np.hypot(half[0], half[1]) * 2 == pytest.approx(0.065)
 
 
@@ -69,19 +69,19 @@ def test_user_manifest(tmp_path):
         ]
     }
     (tmp_path / "objects.json").write_text(json.dumps(manifest))
-    specs = pa.load_object_folder(str(tmp_path))
+    specs = objset.load_object_folder(str(tmp_path))
     assert [(s.name, s.split) for s in specs] == [("pencil case", "unseen"), ("tin", "seen")]
     assert specs[1].color == (10, 20, 30)
     bad = {"objects": [{"name": "x", "mesh": "meshes/a/model.obj", "split": "maybe"}]}
     (tmp_path / "objects.json").write_text(json.dumps(bad))
     with pytest.raises(ValueError, match="split"):
-        pa.load_object_folder(str(tmp_path))
+        objset.load_object_folder(str(tmp_path))
 
 
 def test_user_set_is_used_by_the_tasks(tmp_path, monkeypatch):
     for name in ("block_a", "block_b", "block_c", "block_d", "block_e", "block_f"):
         _write_cube(tmp_path / name)
-    monkeypatch.setenv(pa.OBJECTS_ENV_VAR, str(tmp_path))
+    monkeypatch.setenv(objset.OBJECTS_ENV_VAR, str(tmp_path))
     task = tasks.make("packing-seen-objects-seq")
     with Environment(EnvConfig.defaults(camera_scale=0.5), task=task) as env:
         episode = run_episode(env, 0, oracle_policy(env), record=True)

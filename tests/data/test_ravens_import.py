@@ -20,10 +20,10 @@ from cliport.cli.import_demos import entry, main
 from cliport.data.dataset import DemoDataset
 from cliport.data.episode_io import HEIGHT_UNIT, dataset_dir, episode_path, existing_seeds, load_episode
 from cliport.data.generate import DemoConfig, generate
+from cliport.data.ravens_import import load_pickle, safe_unpickler
 from cliport.data.rollout import oracle_policy, run_episode
-from cliport.deploy.importer import DemoImportError
-from cliport.deploy.ravens import load_pickle, safe_unpickler
 from cliport.env.environment import EnvConfig, Environment
+from cliport.errors import DemoImportError
 
 TASK = "place-red-in-green"
 SCALE = 0.5
@@ -296,7 +296,7 @@ def test_safe_unpickler_reads_numpy1_names_and_refuses_the_rest(tmp_path):
 
 
 def test_reference_cameras_at_any_uniform_scale():
-    from cliport.deploy.ravens import cameras_for
+    from cliport.data.ravens_import import cameras_for
     from cliport.env.cameras import realsense_d415
 
     assert cameras_for((480, 640), "x") == realsense_d415()

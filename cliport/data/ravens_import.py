@@ -26,7 +26,7 @@ arrays, numpy scalars and dtypes and built-in containers only: a pickle that nam
 function such as ``os.system``, any class) is refused before any of it runs. Every episode's five
 files are read and checked before the first file is written; re-running resumes (episode files already
 imported from the same pickles are kept). Every problem is one
-:class:`~cliport.deploy.importer.DemoImportError` naming the file.
+:class:`~cliport.errors.DemoImportError` naming the file.
 """
 
 from __future__ import annotations
@@ -40,10 +40,11 @@ from typing import Any
 
 import numpy as np
 
-from cliport.data.episode_io import dataset_dir, episode_path, save_episode
-from cliport.deploy.importer import MODES, DemoImportError, kept_import
+from cliport.data.episode_io import dataset_dir, episode_path, kept_import, save_episode
+from cliport.data.seeds import MODES, seed_mode
 from cliport.env import heightmap as hm
 from cliport.env.cameras import CameraConfig, realsense_d415
+from cliport.errors import DemoImportError
 from cliport.utils.safe_pickle import NUMPY_GLOBALS, RestrictedUnpickler, UnsafePickleError
 
 FIELDS = ("action", "color", "depth", "info", "reward")
@@ -96,13 +97,6 @@ class RavensEpisode:
     index: int
     seed: int
     paths: dict[str, str]
-
-
-def seed_mode(seed: int) -> str:
-    """The split a seed belongs to in the seed protocol (the reference's and ours)."""
-    if seed % 2 == 0:
-        return "train"
-    return "test" if seed >= 10001 else "val"
 
 
 def find_ravens_episodes(src: str, mode: str) -> list[RavensEpisode]:

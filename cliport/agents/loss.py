@@ -1,0 +1,60 @@
+"""The training objective of every agent and the project's one optimiser step."""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Callable
+from typing import Any
+
+import torch
+import torch.nn.functional as F
+
+LossFn = Callable[[dict[str, Any]], tuple[torch.Tensor, dict[str, float]]]
+
+
+def pick_place_loss(
+    pick_logits: torch.Tensor,
+    place_logits: torch.Tensor,
+    pick_pix: torch.Tensor,
+    place_pix: torch.Tensor,
+    place_rot: torch.Tensor,
+    loss: str = "sample_ce",
+) -> tuple[torch.Tensor, dict[str, float]]:
+    """Pick logits (B, H, W) and place logits (B, R, H, W) against target pixels (B, 2) (row, col) and
+    rotation bins (B,), int64: the loss and the per-sample cross-entropies (``loss``, ``pick_loss``,
+    ``place_loss``).
+
+    ``loss``: ``sample_ce``, each map's cross-entropy over all its cells, averaged over the batch (Ravens');
+    ``cell_mean``, each map's cross-entropy divided by its cells, H * W for pick and R * H * W for place (the
+    reference CLIPort's mean of ``-label * log_softmax`` over the map).
+    """
+    h, w = pick_logits.shape[-2:]
+    pick_target = pick_pix[:, 0] * w + pick_pix[:, 1]
+    place_target = (place_rot * h + place_pix[:, 0]) * w + place_pix[:, 1]
+    pick_loss = F.cross_entropy(pick_logits.flatten(1).float(), pick_target)
+    place_loss = F.cross_entropy(place_logits.flatten(1).float(), place_target)
+    total = pick_loss + place_loss
+    info = {"loss": total.item(), "pick_loss": pick_loss.item(), "place_loss": place_loss.item()}
+    if loss == "cell_mean":
+        total = pick_loss / pick_logits[0].numel() + place_loss / place_logits[0].numel()
+    elif loss != "sample_ce":
+        raise ValueError(f"unknown loss {loss!r}; choose cell_mean or sample_ce")
+    return total, info
+
+
+def optimizer_step(
+    loss_fn: LossFn,
+    batch: dict[str, Any],
+    optimizer: torch.optim.Optimizer,
+    autocast: contextlib.AbstractContextManager[Any] | None = None,
+) -> dict[str, float]:
+    """The one training step of the project: zero grads, loss (under ``autocast``), backward, step.
+
+    ``loss_fn`` is an agent's ``compute_loss`` or a DDP-wrapped module with the same call signature.
+    """
+    optimizer.zero_grad(set_to_none=True)
+    with autocast or contextlib.nullcontext():
+        loss, info = loss_fn(batch)
+    loss.backward()
+    optimizer.step()
+    return info
