@@ -11,12 +11,7 @@ import torch
 from cliport.agents import PickPlaceAgent, agent_class, agent_names, load_agent, make_agent
 
 H, W = 64, 32
-TINY = {"width": 0.125, "crop_size": 32, "n_rotations": 8}
 INSTRUCTION = "put the red block in the green bowl"
-
-
-def _config(name: str) -> dict[str, object]:
-    return {**TINY, **dict.fromkeys(agent_class(name).weight_sources, "random")}
 
 
 def _scene(seed: int = 0) -> dict[str, np.ndarray]:
@@ -40,10 +35,10 @@ def _batch() -> dict[str, object]:
 
 
 @pytest.fixture(scope="module", params=agent_names())
-def trained(request: pytest.FixtureRequest) -> tuple[PickPlaceAgent, dict[str, torch.Tensor], list[float]]:
+def trained(request: pytest.FixtureRequest, tiny_config) -> tuple[PickPlaceAgent, dict[str, torch.Tensor], list[float]]:
     """An agent after two training steps, with a copy of its frozen state from before them."""
     torch.manual_seed(0)
-    agent = make_agent(request.param, _config(request.param))
+    agent = make_agent(request.param, tiny_config(request.param))
     frozen_before = {} if agent.encoder is None else {k: v.clone() for k, v in agent.encoder.state_dict().items()}
     optimizer = agent.make_optimizer()
     losses = [agent.train_step(_batch(), optimizer)["loss"] for _ in range(2)]
@@ -113,11 +108,11 @@ def test_language_changes_what_language_agents_do(trained) -> None:
         np.testing.assert_array_equal(a, agent.act(scene, "pack the yellow block in the brown box")["place_heatmap"])
 
 
-def test_semantic_encoder_is_a_setting_recorded_in_checkpoints(tmp_path: Path) -> None:
+def test_semantic_encoder_is_a_setting_recorded_in_checkpoints(tmp_path: Path, tiny_config) -> None:
     """--semantic-encoder: a ViT CLIP in the CLIP-only agent trains, and its checkpoint rebuilds the same
     encoder (the name is in the saved config) and acts identically."""
     torch.manual_seed(0)
-    agent = make_agent("clip_only", {**_config("clip_only"), "semantic_encoder": "ViT-B-16"})
+    agent = make_agent("clip_only", tiny_config("clip_only", semantic_encoder="ViT-B-16"))
     assert agent.encoder.trunk_channels == (768,) * 5 and agent.encoder.sentence_dim == 512
     agent.train_step(_batch(), agent.make_optimizer())
     path = tmp_path / "vit.pt"
