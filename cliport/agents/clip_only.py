@@ -5,7 +5,7 @@ from __future__ import annotations
 from cliport.agents import register_agent
 from cliport.agents.base import PickPlaceAgent
 from cliport.agents.config import CLIPConfig
-from cliport.models.clip_backbone import load_clip
+from cliport.models.clip_encoder import load_clip
 from cliport.models.encoders import FrozenEncoder
 from cliport.models.heads import PickHead, PlaceHead
 from cliport.models.streams import SemanticNet

@@ -1,7 +1,7 @@
 import pytest
 import torch
 
-from cliport.models.clip_backbone import FrozenCLIP, load_clip
+from cliport.models.clip_encoder import FrozenCLIP, load_clip
 from cliport.models.heads import PickHead, PlaceHead
 from cliport.models.resnet import ResNet43_8s, ResNet45_10s
 from cliport.models.streams import SemanticNet, TransporterNet, TwoStreamNet

@@ -11,15 +11,11 @@ import torch
 from safetensors.torch import save_file
 
 from cliport.errors import UserError
-from cliport.models import clip_backbone
-from cliport.models.clip_backbone import (
-    CLIPWeightsUnavailable,
-    FrozenCLIP,
-    UnknownEncoderError,
-    UnsupportedEncoderError,
-    build_clip_model,
-    load_clip,
-)
+from cliport.models import clip_weights
+from cliport.models.clip_encoder import FrozenCLIP, load_clip
+from cliport.models.clip_registry import UnknownEncoderError, UnsupportedEncoderError
+from cliport.models.clip_vit import vit_block_indices
+from cliport.models.clip_weights import CLIPWeightsUnavailable, build_clip_model
 from cliport.models.streams import SemanticNet, TwoStreamNet
 
 # Smallest open_clip model with a text tower and open_clip's own tokenizer (~42M parameters).
@@ -75,7 +71,7 @@ def test_frozen_stays_in_eval_mode_without_grads(encoder: FrozenCLIP) -> None:
 
 def test_vit_uses_blocks_3_6_9_12(vit: FrozenCLIP) -> None:
     assert vit.vit_blocks == (2, 5, 8, 11)
-    assert clip_backbone._vit_block_indices(24) == (5, 11, 17, 23)
+    assert vit_block_indices(24) == (5, 11, 17, 23)
 
 
 def test_vit_features_follow_the_image(vit: FrozenCLIP) -> None:
@@ -160,8 +156,8 @@ def test_state_dict_file_of_another_model_round_trips(tmp_path: Path) -> None:
 
 
 def test_offline_pretrained_tag_lists_the_models_options(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(clip_backbone, "_cached_pretrained_file", lambda model_name, tag: None)
-    monkeypatch.setattr(clip_backbone, "_hub_reachable", lambda timeout_s=3.0: False)
+    monkeypatch.setattr(clip_weights, "_cached_pretrained_file", lambda model_name, tag: None)
+    monkeypatch.setattr(clip_weights, "_hub_reachable", lambda timeout_s=3.0: False)
     start = time.monotonic()
     with pytest.raises(CLIPWeightsUnavailable) as err:
         build_clip_model("openai", "RN101-quickgelu")
@@ -179,7 +175,8 @@ def test_hub_tokenizer_offline_is_one_user_error_line(tmp_path: Path) -> None:
     In a fresh interpreter, since huggingface_hub reads HF_HOME and HF_HUB_OFFLINE when it is imported.
     """
     script = (
-        "from cliport.models.clip_backbone import TokenizerUnavailable, load_clip\n"
+        "from cliport.models.clip_encoder import load_clip\n"
+        "from cliport.models.clip_tokenizer import TokenizerUnavailable\n"
         "try:\n"
         "    load_clip('random', 'ViT-H-14-CLIPA')\n"
         "except TokenizerUnavailable as err:\n"
