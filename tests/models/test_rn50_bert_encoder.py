@@ -268,9 +268,7 @@ def _bad_resnet_file(tmp_path: Path, kind: str, encoder: FrozenRN50BERT) -> tupl
         *("other-model", "wrong-shape"),
     ],
 )
-def test_bad_resnet_file_is_one_clear_line(
-    encoder: FrozenRN50BERT, tmp_path: Path, kind: str, bad_weight_file
-) -> None:
+def test_bad_resnet_file_is_one_clear_line(encoder: FrozenRN50BERT, tmp_path: Path, kind: str, bad_weight_file) -> None:
     path, reason = bad_weight_file(kind, "resnet50") or _bad_resnet_file(tmp_path, kind, encoder)
     with pytest.raises(RN50WeightsUnavailable) as err:
         build_rn50_trunk(str(path))

@@ -16,7 +16,8 @@ from cliport.models.clip_encoder import FrozenCLIP, load_clip
 from cliport.models.clip_registry import UnknownEncoderError, UnsupportedEncoderError
 from cliport.models.clip_vit import vit_block_indices
 from cliport.models.clip_weights import CLIPWeightsUnavailable, build_clip_model
-from cliport.models.streams import SemanticNet, TwoStreamNet
+from cliport.models.semantic import SemanticNet
+from cliport.models.two_stream import TwoStreamNet
 
 # Smallest open_clip model with a text tower and open_clip's own tokenizer (~42M parameters).
 SMALL_MODEL = "ViT-S-32-alt"
@@ -106,7 +107,11 @@ def test_vit_levels_at_the_native_size_are_open_clips_own_block_outputs(vit: Fro
 @pytest.mark.parametrize("net", ["semantic", "two-stream"])
 def test_decoders_train_on_other_encoder_widths(encoder: FrozenCLIP, net: str) -> None:
     torch.manual_seed(0)
-    model = SemanticNet(encoder, 3, width=0.125) if net == "semantic" else TwoStreamNet(encoder, 3, "conv", width=0.125)
+    model = (
+        SemanticNet(encoder, 3, width=0.125)
+        if net == "semantic"
+        else TwoStreamNet(encoder, 3, width=0.125, conv_fusion=True)
+    )
     x = torch.cat([_images(5, 64, 64), torch.rand(2, 3, 64, 64) * 0.1], dim=1)
     out = model(x, encoder.sentence_features(["pack the box", "push the pile"]))
     assert out.shape == (2, 3, 64, 64)
