@@ -21,7 +21,7 @@ from cliport.agents.device_options import DEVICE_OPTIONS, apply_layout_and_preci
 from cliport.agents.loss import optimizer_step, pick_place_loss
 from cliport.errors import CheckpointError
 from cliport.models.cuda_graphs import GraphedForward, GraphMemory
-from cliport.models.encoders import FrozenEncoder
+from cliport.models.encoders import EncoderNet, FrozenEncoder
 from cliport.models.heads import PickHead, PlaceHead
 from cliport.models.preprocess import raw_input
 from cliport.utils.files import save_torch
@@ -142,12 +142,7 @@ class PickPlaceAgent(nn.Module):
         statistics; running statistics updated as the reference's batch-1 steps would), as the reference
         CLIPort's ``attention.train()`` does. Only nets that keep their own statistics (``per_net_clip_stats``)
         can: the shared encoder's are never saved. Acting is unaffected. Returns how many nets it applies to."""
-        nets = [m for m in self.modules() if hasattr(m, "encoder_stats")]
-        applied = 0
-        for net in nets:
-            net.train_encoder_norms = enabled and net.encoder_stats is not None
-            applied += net.train_encoder_norms
-        return applied
+        return sum(net.set_encoder_norm_training(enabled) for net in self.modules() if isinstance(net, EncoderNet))
 
     def trainable_parameters(self) -> list[nn.Parameter]:
         return [p for p in self.parameters() if p.requires_grad]

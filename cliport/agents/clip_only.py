@@ -5,12 +5,10 @@ from __future__ import annotations
 from cliport.agents import register_agent
 from cliport.agents.base import PickPlaceAgent
 from cliport.agents.config import CLIPConfig
-from cliport.models.clip_backbone import load_clip
+from cliport.models.clip_encoder import load_clip
 from cliport.models.encoders import FrozenEncoder
-from cliport.models.heads import PickHead, PlaceHead
-from cliport.models.streams import SemanticNet
-
-PLACE_FEATURES = 3
+from cliport.models.heads import PLACE_FEATURES, PickHead, PlaceHead
+from cliport.models.semantic import SemanticNet
 
 
 @register_agent("clip_only", CLIPConfig)
@@ -23,13 +21,11 @@ class CLIPOnlyAgent(PickPlaceAgent):
 
     def __init__(self, config: CLIPConfig, encoder: FrozenEncoder | None = None) -> None:
         encoder = encoder if encoder is not None else load_clip(config.clip_weights, config.semantic_encoder)
-        own = config.per_net_clip_stats
-        pick = PickHead(SemanticNet(encoder, 1, config.width, own_norm_stats=own))
+        stats = config.per_net_clip_stats
+        pick = PickHead(SemanticNet(encoder, 1, config.width, per_net_clip_stats=stats))
         place = PlaceHead(
-            SemanticNet(encoder, PLACE_FEATURES, config.width, own_norm_stats=own),
-            SemanticNet(
-                encoder, PLACE_FEATURES, config.width, samples_per_group=config.n_rotations, own_norm_stats=own
-            ),
+            SemanticNet(encoder, PLACE_FEATURES, config.width, per_net_clip_stats=stats),
+            SemanticNet(encoder, PLACE_FEATURES, config.width, per_net_clip_stats=stats),
             config.crop_size,
             config.n_rotations,
         )

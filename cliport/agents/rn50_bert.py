@@ -9,7 +9,7 @@ from cliport.agents import register_agent
 from cliport.agents.config import AgentConfig
 from cliport.agents.two_stream import TwoStreamAgent
 from cliport.models.encoders import FrozenEncoder
-from cliport.models.rn50_bert import load_rn50_bert
+from cliport.models.rn50_bert_encoder import load_rn50_bert
 
 
 @dataclass

@@ -5,10 +5,8 @@ from __future__ import annotations
 from cliport.agents import register_agent
 from cliport.agents.base import PickPlaceAgent
 from cliport.agents.config import AgentConfig
-from cliport.models.heads import PickHead, PlaceHead
-from cliport.models.streams import TransporterNet
-
-PLACE_FEATURES = 3
+from cliport.models.heads import PLACE_FEATURES, PickHead, PlaceHead
+from cliport.models.transporter import TransporterNet
 
 
 @register_agent("transporter_only", AgentConfig)

@@ -5,12 +5,10 @@ from __future__ import annotations
 from cliport.agents import register_agent
 from cliport.agents.base import PickPlaceAgent
 from cliport.agents.config import CLIPConfig
-from cliport.models.clip_backbone import load_clip
+from cliport.models.clip_encoder import load_clip
 from cliport.models.encoders import FrozenEncoder
-from cliport.models.heads import PickHead, PlaceHead
-from cliport.models.streams import TwoStreamNet
-
-PLACE_FEATURES = 3
+from cliport.models.heads import PLACE_FEATURES, PickHead, PlaceHead
+from cliport.models.two_stream import TwoStreamNet
 
 
 @register_agent("two_stream", CLIPConfig)
@@ -23,13 +21,11 @@ class TwoStreamAgent(PickPlaceAgent):
 
     def __init__(self, config: CLIPConfig, encoder: FrozenEncoder | None = None) -> None:
         encoder = encoder if encoder is not None else load_clip(config.clip_weights, config.semantic_encoder)
-        own = isinstance(config, CLIPConfig) and config.per_net_clip_stats  # RN50-BERT has no CLIP
-        pick = PickHead(TwoStreamNet(encoder, 1, "add", config.width, own_norm_stats=own))
+        stats = isinstance(config, CLIPConfig) and config.per_net_clip_stats  # RN50-BERT has no CLIP
+        pick = PickHead(TwoStreamNet(encoder, 1, config.width, per_net_clip_stats=stats))
         place = PlaceHead(
-            TwoStreamNet(encoder, PLACE_FEATURES, "conv", config.width, own_norm_stats=own),
-            TwoStreamNet(
-                encoder, PLACE_FEATURES, "conv", config.width, samples_per_group=config.n_rotations, own_norm_stats=own
-            ),
+            TwoStreamNet(encoder, PLACE_FEATURES, config.width, conv_fusion=True, per_net_clip_stats=stats),
+            TwoStreamNet(encoder, PLACE_FEATURES, config.width, conv_fusion=True, per_net_clip_stats=stats),
             config.crop_size,
             config.n_rotations,
         )

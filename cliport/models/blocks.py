@@ -111,7 +111,8 @@ class PerSampleBatchNorm2d(nn.BatchNorm2d):
     normalise with each call's own statistics: one image for the pick and key nets, the 36 rotated
     crops of one sample for the query net. Here a call may hold several samples (training batches,
     ``act_batch``): the images are split into groups of ``samples_per_group`` consecutive images
-    (1 for pick and key; ``n_rotations`` for the query net, whose crops come sample-major), and each
+    (1 for pick and key; ``n_rotations`` for the query net, whose crops come sample-major: its
+    :class:`~cliport.models.heads.PlaceHead` sets that), and each
     group is normalised by its own per-channel mean and biased variance. A batch of 8 therefore trains
     like 8 reference steps and batch-mates never influence each other's outputs. The running
     statistics are never read; in training mode they are updated as the reference's sequence of
@@ -159,13 +160,13 @@ class PerSampleBatchNorm2d(nn.BatchNorm2d):
 class DoubleConv(nn.Sequential):
     """(3x3 conv -> batch norm -> ReLU) x 2, the reference U-Net's block (convs with biases)."""
 
-    def __init__(self, in_ch: int, out_ch: int, mid_ch: int, samples_per_group: int = 1) -> None:
+    def __init__(self, in_ch: int, out_ch: int, mid_ch: int) -> None:
         super().__init__(
             nn.Conv2d(in_ch, mid_ch, 3, padding=1),
-            PerSampleBatchNorm2d(mid_ch, samples_per_group),
+            PerSampleBatchNorm2d(mid_ch),
             nn.ReLU(inplace=True),
             nn.Conv2d(mid_ch, out_ch, 3, padding=1),
-            PerSampleBatchNorm2d(out_ch, samples_per_group),
+            PerSampleBatchNorm2d(out_ch),
             nn.ReLU(inplace=True),
         )
 
@@ -174,9 +175,9 @@ class UpBlock(nn.Module):
     """U-Net up-block: x2 up-sampling (``align_corners=True``), zero-pad to the skip's size, concatenate
     [skip, up] and a :class:`DoubleConv` from ``in_ch`` (= both widths) through ``in_ch // 2`` to ``out_ch``."""
 
-    def __init__(self, in_ch: int, out_ch: int, samples_per_group: int = 1) -> None:
+    def __init__(self, in_ch: int, out_ch: int) -> None:
         super().__init__()
-        self.conv = DoubleConv(in_ch, out_ch, in_ch // 2, samples_per_group)
+        self.conv = DoubleConv(in_ch, out_ch, in_ch // 2)
 
     def forward(self, x: torch.Tensor, skip: torch.Tensor) -> torch.Tensor:
         """(N, c, h, w), skip (N, in_ch - c, H, W) with H, W >= 2h, 2w -> (N, out_ch, H, W)."""
@@ -188,7 +189,8 @@ class UpBlock(nn.Module):
 
 
 class LateralFusion(nn.Module):
-    """concat(semantic, spatial lateral) -> ReLU -> 1x1 conv (no bias) to ``out_ch`` channels."""
+    """concat(semantic, spatial lateral) -> ReLU -> 1x1 conv (no bias) to ``out_ch`` channels: the reference's
+    ``FusionConvLat``."""
 
     def __init__(self, in_ch: int, out_ch: int) -> None:
         super().__init__()
@@ -197,6 +199,26 @@ class LateralFusion(nn.Module):
     def forward(self, x: torch.Tensor, lateral: torch.Tensor) -> torch.Tensor:
         """(N, c, H, W), (N, in_ch - c, H, W) -> (N, out_ch, H, W)."""
         return self.conv(F.relu(torch.cat([x, lateral], dim=1)))
+
+
+class AddFusion(nn.Module):
+    """The two streams' outputs summed: the reference's ``FusionAdd`` (fusion type "add", its pick nets)."""
+
+    def forward(self, spatial: torch.Tensor, semantic: torch.Tensor) -> torch.Tensor:
+        """(N, C, H, W), (N, C, H, W) -> (N, C, H, W)."""
+        return spatial + semantic
+
+
+class ConvFusion(nn.Conv2d):
+    """concat(spatial, semantic) -> ReLU -> 1x1 conv (no bias) from ``2 * ch`` to ``ch`` channels: the reference's
+    ``FusionConv`` (fusion type "conv", its key and query nets). A ``Conv2d`` itself, so its weight is ``weight``."""
+
+    def __init__(self, ch: int) -> None:
+        super().__init__(2 * ch, ch, 1, bias=False)
+
+    def forward(self, spatial: torch.Tensor, semantic: torch.Tensor) -> torch.Tensor:  # type: ignore[override]
+        """(N, ch, H, W), (N, ch, H, W) -> (N, ch, H, W)."""
+        return super().forward(F.relu(torch.cat([spatial, semantic], dim=1)))
 
 
 def scaled(width: int, multiplier: float) -> int:

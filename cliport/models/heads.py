@@ -1,4 +1,7 @@
-"""Pick ("attention") and place ("transport") heads wrapped around any net of the streams module.
+"""Pick ("attention") and place ("transport") heads wrapped around any of the nets (see :mod:`cliport.models`).
+
+They reproduce the reference's ``Attention`` and ``Transport`` (cliport/models/core/attention.py,
+transport.py) and their stream variants around whichever nets an agent gives them.
 
 Rotation convention (place), the reference CLIPort's: the query of bin k is cut from the padded input
 rotated by k * 360 / n_rotations degrees about the pick pixel, counter-clockwise as the image is shown
@@ -18,7 +21,12 @@ import torch.nn.functional as F
 from torch import nn
 
 from cliport.models import rotation
+from cliport.models.blocks import PerSampleBatchNorm2d
 from cliport.models.correlation import transport_correlation
+from cliport.models.encoders import EncoderNet
+
+#: Output channels of the place head's key and query nets (the reference's transport ``output_dim``).
+PLACE_FEATURES = 3
 
 
 class PickHead(nn.Module):
@@ -46,8 +54,20 @@ class PickHead(nn.Module):
         return logits[:, 0, top : top + h, left : left + w]
 
 
+def _group_by_sample(net: nn.Module, images_per_sample: int) -> None:
+    """Tell a net that its batches hold ``images_per_sample`` consecutive images per sample (a query net's
+    rotated crops): its per-sample batch norms and its encoder-norm training group them so."""
+    for module in net.modules():
+        if isinstance(module, (PerSampleBatchNorm2d, EncoderNet)):
+            module.samples_per_group = images_per_sample
+
+
 class PlaceHead(nn.Module):
-    """Transporter place head: rotated query crops around the pick pixel correlated with a key map."""
+    """Transporter place head: rotated query crops around the pick pixel correlated with a key map.
+
+    The query net sees ``n_rotations`` crops per sample; the head sets its ``samples_per_group`` (see
+    :class:`~cliport.models.blocks.PerSampleBatchNorm2d`) to that.
+    """
 
     def __init__(self, key_net: nn.Module, query_net: nn.Module, crop_size: int, n_rotations: int) -> None:
         super().__init__()
@@ -57,6 +77,7 @@ class PlaceHead(nn.Module):
         self.query_net = query_net
         self.crop_size = crop_size
         self.n_rotations = n_rotations
+        _group_by_sample(query_net, n_rotations)
         self.input_memory_format = torch.contiguous_format
         # Another layout for the key net's input only (None: input_memory_format). The reference's key net reads
         # a permuted (H, W, C) array, i.e. channels_last: float32 convolutions of the two layouts round

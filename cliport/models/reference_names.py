@@ -21,8 +21,9 @@ REFERENCE_AGENTS: dict[str, tuple[str, ...]] = {
 }
 
 
-#: Our prefix (within a net) of its own CLIP batch-norm statistics (``NormStats``, per_net_clip_stats).
-STATS = "encoder_stats."
+#: Our prefix (within a net) of its own CLIP batch-norm statistics (``per_net_clip_stats``:
+#: :class:`~cliport.models.encoders.PerNetClipStats`, saved under the net's ``encoder_stats``).
+PER_NET_CLIP_STATS = "encoder_stats."
 
 
 def _stages(ours: str, theirs: list[str]) -> list[tuple[str, str]]:
@@ -30,8 +31,8 @@ def _stages(ours: str, theirs: list[str]) -> list[tuple[str, str]]:
 
 
 def _resnet43() -> list[tuple[str, str]]:
-    """ResNet43_8s: ours stem/encoder/decoder/head, the reference's one ``layers`` Sequential (its
-    batch-norm placeholders, ReLUs and up-samplings take indices too)."""
+    """ResNet43_8s: our Sequential's named sections stem/encoder/decoder/head, the reference's one ``layers``
+    Sequential (its batch-norm placeholders, ReLUs and up-samplings take indices too)."""
     rules = [("resnet.stem.", "layers.0.")]
     for stage, first in enumerate((3, 5, 7, 9)):  # conv block, identity block
         rules += [(f"resnet.encoder.{stage}.{i}.", f"layers.{first + i}.") for i in (0, 1)]
@@ -50,8 +51,9 @@ def _resnet45(ours: str) -> list[tuple[str, str]]:
 
 
 def _lingunet(ours: str, laterals: bool) -> list[tuple[str, str]]:
-    """CLIPLingUNet(Lat): ours gates/bottleneck/ups/stages/fusions/out, the reference's lang_proj1..3, conv1,
-    up1..3, layer1..3, lat_fusion1..6, conv2."""
+    """LingUNetDecoder / LingUNetLatDecoder (the reference's CLIPLingUNet(Lat), RN50BertLingUNetLat): ours
+    sentence_fc/gates/bottleneck/ups/stages/fusions/out, the reference's text_fc, lang_proj1..3, conv1, up1..3,
+    layer1..3, lat_fusion1..6, conv2."""
     rules = [(f"{ours}.sentence_fc.", "text_fc."), (f"{ours}.bottleneck.", "conv1."), (f"{ours}.out.", "conv2.0.")]
     for i in range(3):
         rules += [
@@ -117,8 +119,8 @@ def reference_name(agent: str, key: str) -> str:
         if not key.startswith(net.ours):
             continue
         inner = key[len(net.ours) :]
-        if inner.startswith(STATS) and net.clip is not None:  # the net's own CLIP batch-norm statistics
-            return net.clip + "visual." + inner[len(STATS) :].replace("__", ".")
+        if inner.startswith(PER_NET_CLIP_STATS) and net.clip is not None:  # the net's own CLIP batch-norm statistics
+            return net.clip + "visual." + inner[len(PER_NET_CLIP_STATS) :].replace("__", ".")
         matches = [(a, b) for a, b in net.rules if inner.startswith(a)]
         if matches:
             ours, theirs = max(matches, key=lambda rule: len(rule[0]))

@@ -1,6 +1,12 @@
-"""Hourglass fully-convolutional ResNets: ResNet43_8s (Transporter) and the lateral ResNet45_10s (CLIPort)."""
+"""Hourglass fully-convolutional ResNets: ResNet43_8s (Transporter) and the lateral ResNet45_10s (CLIPort).
+
+Reproduces the reference's ``ResNet43_8s`` (cliport/models/resnet.py) and ``ResNet45_10s``
+(cliport/models/resnet_lat.py) with ``batchnorm: False``, as the reference trains them.
+"""
 
 from __future__ import annotations
+
+from collections import OrderedDict
 
 import torch
 import torch.nn.functional as F
@@ -9,30 +15,35 @@ from torch import nn
 from cliport.models.blocks import HeadStage, ResidualStage, UpStage, resize, scaled
 
 
-class ResNet43_8s(nn.Module):  # noqa: N801 - the name used by the Transporter Networks paper
+class ResNet43_8s(nn.Sequential):  # noqa: N801 - the name used by the Transporter Networks paper
     """3x3 stem (64), encoder stages 64, 128/2, 256/2, 512/2 (stride on each stage's 3x3 conv), decoder
     stages 256, 128, 64 each followed by x2 up-sampling, and a 16-wide head: (N, in, H, W) at 1/8 and back.
 
-    Height and width of the input must be multiples of 8.
+    One ``Sequential``, as the reference's ``layers``; its sections are named children (``stem``,
+    ``encoder``, ``decoder``, ``head``: the names of this net's state dict). Height and width of the input
+    must be multiples of 8: (N, in_ch, H, W) -> (N, out_ch, H, W).
     """
 
     def __init__(self, in_ch: int, out_ch: int, width: float = 1.0) -> None:
-        super().__init__()
-        w = [scaled(c, width) for c in (64, 128, 256, 512, 256, 128, 64)]
-        self.stem = nn.Conv2d(in_ch, w[0], 3, padding=1)
-        self.encoder = nn.Sequential(
-            ResidualStage(w[0], w[0]),
-            ResidualStage(w[0], w[1], stride=2),
-            ResidualStage(w[1], w[2], stride=2),
-            ResidualStage(w[2], w[3], stride=2),
+        w64, w128, w256, w512 = (scaled(c, width) for c in (64, 128, 256, 512))
+        super().__init__(
+            OrderedDict(
+                # the reference's conv1
+                stem=nn.Conv2d(in_ch, w64, 3, padding=1),
+                relu=nn.ReLU(),
+                # its fcn
+                encoder=nn.Sequential(
+                    ResidualStage(w64, w64),
+                    ResidualStage(w64, w128, stride=2),
+                    ResidualStage(w128, w256, stride=2),
+                    ResidualStage(w256, w512, stride=2),
+                ),
+                # its head
+                decoder=nn.Sequential(UpStage(w512, w256), UpStage(w256, w128), UpStage(w128, w64)),
+                # its conv2
+                head=HeadStage(w64, scaled(16, width), out_ch),
+            )
         )
-        self.decoder = nn.Sequential(UpStage(w[3], w[4]), UpStage(w[4], w[5]), UpStage(w[5], w[6]))
-        self.head = HeadStage(w[6], scaled(16, width), out_ch)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """(N, in_ch, H, W) -> (N, out_ch, H, W)."""
-        x = F.relu(self.stem(x))
-        return self.head(self.decoder(self.encoder(x)))
 
 
 class ResNet45_10s(nn.Module):  # noqa: N801 - the name used by the CLIPort code base

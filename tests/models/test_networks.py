@@ -1,10 +1,12 @@
 import pytest
 import torch
 
-from cliport.models.clip_backbone import FrozenCLIP, load_clip
+from cliport.models.clip_encoder import FrozenCLIP, load_clip
 from cliport.models.heads import PickHead, PlaceHead
 from cliport.models.resnet import ResNet43_8s, ResNet45_10s
-from cliport.models.streams import SemanticNet, TransporterNet, TwoStreamNet
+from cliport.models.semantic import SemanticNet
+from cliport.models.transporter import TransporterNet
+from cliport.models.two_stream import TwoStreamNet
 
 
 def _count(module: torch.nn.Module) -> int:
@@ -29,22 +31,27 @@ def test_resnet45_laterals() -> None:
     assert out.shape == (2, 3, 64, 32)
     # The inputs of the five decoder stages and of the head, which runs at twice the input size.
     assert [tuple(t.shape[1:]) for t in laterals] == [
-        (128, 4, 2), (64, 8, 4), (32, 16, 8), (16, 32, 16), (8, 64, 32), (4, 128, 64)
+        (128, 4, 2),
+        (64, 8, 4),
+        (32, 16, 8),
+        (16, 32, 16),
+        (8, 64, 32),
+        (4, 128, 64),
     ]
 
 
 def test_two_stream_real_size_params(clip: FrozenCLIP) -> None:
-    pick = TwoStreamNet(clip, 1, "add")
-    key = TwoStreamNet(clip, 3, "conv")
+    pick = TwoStreamNet(clip, 1)
+    key = TwoStreamNet(clip, 3, conv_fusion=True)
     assert 88e6 < _count(pick) < 96e6
     assert 88e6 < _count(key) < 96e6
     assert all(not p.requires_grad for p in clip.parameters())
 
 
-@pytest.mark.parametrize("fusion,out_ch", [("add", 1), ("conv", 3)])
-def test_two_stream_shapes_and_language_dependence(clip: FrozenCLIP, fusion: str, out_ch: int) -> None:
+@pytest.mark.parametrize("conv_fusion,out_ch", [(False, 1), (True, 3)])
+def test_two_stream_shapes_and_language_dependence(clip: FrozenCLIP, conv_fusion: bool, out_ch: int) -> None:
     torch.manual_seed(0)
-    net = TwoStreamNet(clip, out_ch, fusion, width=0.25)
+    net = TwoStreamNet(clip, out_ch, width=0.25, conv_fusion=conv_fusion)
     x = torch.rand(2, 6, 64, 96)
     sentences = clip.sentence_features(["pick the red block", "pick the blue block"])
     out = net(x, sentences)
@@ -60,7 +67,7 @@ def test_two_stream_shapes_and_language_dependence(clip: FrozenCLIP, fusion: str
 
 
 def test_two_stream_gradients_reach_every_trainable_parameter(clip: FrozenCLIP) -> None:
-    net = TwoStreamNet(clip, 3, "conv", width=0.125)
+    net = TwoStreamNet(clip, 3, width=0.125, conv_fusion=True)
     out = net(torch.rand(1, 6, 64, 64), clip.sentence_features(["a"]))
     out.square().mean().backward()
     missing = [n for n, p in net.named_parameters() if p.requires_grad and p.grad is None]
@@ -83,7 +90,7 @@ def test_semantic_net_reads_rgb_and_language_only(clip: FrozenCLIP) -> None:
     other_rgb = x.clone()
     other_rgb[:, :3] = torch.rand(2, 3, 64, 96)
     assert not torch.allclose(out, net(other_rgb, sentences))
-    assert not hasattr(net, "spatial") and net.semantic.fusions is None
+    assert not hasattr(net, "spatial") and not hasattr(net.semantic, "fusions")
     out.square().mean().backward()
     assert [n for n, p in net.named_parameters() if p.requires_grad and p.grad is None] == []
     with pytest.raises(ValueError):
@@ -92,7 +99,7 @@ def test_semantic_net_reads_rgb_and_language_only(clip: FrozenCLIP) -> None:
 
 def test_semantic_net_real_size_params(clip: FrozenCLIP) -> None:
     """The CLIP-only decoder alone: the two-stream net less its spatial stream and lateral fusions."""
-    two = TwoStreamNet(clip, 3, "conv")
+    two = TwoStreamNet(clip, 3, conv_fusion=True)
     one = SemanticNet(clip, 3)
     lateral = sum(p.numel() for p in two.semantic.fusions.parameters())
     assert _count(one) == _count(two) - _count(two.spatial) - lateral - sum(p.numel() for p in two.fuse.parameters())

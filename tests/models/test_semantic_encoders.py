@@ -11,16 +11,13 @@ import torch
 from safetensors.torch import save_file
 
 from cliport.errors import UserError
-from cliport.models import clip_backbone
-from cliport.models.clip_backbone import (
-    CLIPWeightsUnavailable,
-    FrozenCLIP,
-    UnknownEncoderError,
-    UnsupportedEncoderError,
-    build_clip_model,
-    load_clip,
-)
-from cliport.models.streams import SemanticNet, TwoStreamNet
+from cliport.models import clip_weights
+from cliport.models.clip_encoder import FrozenCLIP, load_clip
+from cliport.models.clip_registry import UnknownEncoderError, UnsupportedEncoderError
+from cliport.models.clip_vit import vit_block_indices
+from cliport.models.clip_weights import CLIPWeightsUnavailable, build_clip_model
+from cliport.models.semantic import SemanticNet
+from cliport.models.two_stream import TwoStreamNet
 
 # Smallest open_clip model with a text tower and open_clip's own tokenizer (~42M parameters).
 SMALL_MODEL = "ViT-S-32-alt"
@@ -75,7 +72,7 @@ def test_frozen_stays_in_eval_mode_without_grads(encoder: FrozenCLIP) -> None:
 
 def test_vit_uses_blocks_3_6_9_12(vit: FrozenCLIP) -> None:
     assert vit.vit_blocks == (2, 5, 8, 11)
-    assert clip_backbone._vit_block_indices(24) == (5, 11, 17, 23)
+    assert vit_block_indices(24) == (5, 11, 17, 23)
 
 
 def test_vit_features_follow_the_image(vit: FrozenCLIP) -> None:
@@ -110,7 +107,11 @@ def test_vit_levels_at_the_native_size_are_open_clips_own_block_outputs(vit: Fro
 @pytest.mark.parametrize("net", ["semantic", "two-stream"])
 def test_decoders_train_on_other_encoder_widths(encoder: FrozenCLIP, net: str) -> None:
     torch.manual_seed(0)
-    model = SemanticNet(encoder, 3, width=0.125) if net == "semantic" else TwoStreamNet(encoder, 3, "conv", width=0.125)
+    model = (
+        SemanticNet(encoder, 3, width=0.125)
+        if net == "semantic"
+        else TwoStreamNet(encoder, 3, width=0.125, conv_fusion=True)
+    )
     x = torch.cat([_images(5, 64, 64), torch.rand(2, 3, 64, 64) * 0.1], dim=1)
     out = model(x, encoder.sentence_features(["pack the box", "push the pile"]))
     assert out.shape == (2, 3, 64, 64)
@@ -160,8 +161,8 @@ def test_state_dict_file_of_another_model_round_trips(tmp_path: Path) -> None:
 
 
 def test_offline_pretrained_tag_lists_the_models_options(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(clip_backbone, "_cached_pretrained_file", lambda model_name, tag: None)
-    monkeypatch.setattr(clip_backbone, "_hub_reachable", lambda timeout_s=3.0: False)
+    monkeypatch.setattr(clip_weights, "_cached_pretrained_file", lambda model_name, tag: None)
+    monkeypatch.setattr(clip_weights, "_hub_reachable", lambda timeout_s=3.0: False)
     start = time.monotonic()
     with pytest.raises(CLIPWeightsUnavailable) as err:
         build_clip_model("openai", "RN101-quickgelu")
@@ -179,7 +180,8 @@ def test_hub_tokenizer_offline_is_one_user_error_line(tmp_path: Path) -> None:
     In a fresh interpreter, since huggingface_hub reads HF_HOME and HF_HUB_OFFLINE when it is imported.
     """
     script = (
-        "from cliport.models.clip_backbone import TokenizerUnavailable, load_clip\n"
+        "from cliport.models.clip_encoder import load_clip\n"
+        "from cliport.models.clip_tokenizer import TokenizerUnavailable\n"
         "try:\n"
         "    load_clip('random', 'ViT-H-14-CLIPA')\n"
         "except TokenizerUnavailable as err:\n"

@@ -7,15 +7,10 @@ import pytest
 import torch
 from safetensors.torch import save_file
 
-from cliport.models import clip_backbone
-from cliport.models.clip_backbone import (
-    CONTEXT_LENGTH,
-    CLIPWeightsUnavailable,
-    FrozenCLIP,
-    build_clip_model,
-    instruction_token_count,
-    load_clip,
-)
+from cliport.models import clip_encoder, clip_registry, clip_weights
+from cliport.models.clip_encoder import FrozenCLIP, load_clip
+from cliport.models.clip_tokenizer import CONTEXT_LENGTH, instruction_token_count
+from cliport.models.clip_weights import CLIPWeightsUnavailable, build_clip_model
 
 
 @pytest.fixture(scope="module")
@@ -49,8 +44,8 @@ def test_state_dict_file_round_trip(clip: FrozenCLIP, tmp_path: Path, suffix: st
 
 
 def test_openai_fails_fast_and_clearly_offline(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(clip_backbone, "_cached_pretrained_file", lambda model_name, tag: None)
-    monkeypatch.setattr(clip_backbone, "_hub_reachable", lambda timeout_s=3.0: False)
+    monkeypatch.setattr(clip_weights, "_cached_pretrained_file", lambda model_name, tag: None)
+    monkeypatch.setattr(clip_weights, "_hub_reachable", lambda timeout_s=3.0: False)
     start = time.monotonic()
     with pytest.raises(CLIPWeightsUnavailable) as err:
         build_clip_model("openai")
@@ -61,7 +56,7 @@ def test_openai_fails_fast_and_clearly_offline(monkeypatch: pytest.MonkeyPatch) 
 
 def test_hub_is_unreachable_when_hf_offline_is_set(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("HF_HUB_OFFLINE", "1")
-    assert not clip_backbone._hub_reachable()
+    assert not clip_weights._hub_reachable()
 
 
 def test_missing_file_is_an_error_not_a_fallback(tmp_path: Path) -> None:
@@ -115,10 +110,10 @@ def test_random_build_logs_and_warns_nothing(caplog: pytest.LogCaptureFixture) -
 
 def test_open_clip_warnings_still_pass_outside_the_random_case(caplog: pytest.LogCaptureFixture) -> None:
     """The filter drops exactly the intended records: open_clip's own warning stays visible elsewhere."""
-    with caplog.at_level(logging.INFO), clip_backbone._quiet_open_clip(expect_random_init=False):
+    with caplog.at_level(logging.INFO), clip_registry.quiet_open_clip(expect_random_init=False):
         import open_clip
 
-        open_clip.create_model(clip_backbone.MODEL_NAME, pretrained=None)
+        open_clip.create_model(clip_registry.MODEL_NAME, pretrained=None)
     messages = [r.getMessage() for r in caplog.records]
     assert len(messages) == 1 and "initialized randomly" in messages[0]
 
@@ -162,7 +157,7 @@ def test_instruction_token_count() -> None:
 def test_long_instruction_warns_once_with_its_token_count(clip: FrozenCLIP, caplog: pytest.LogCaptureFixture) -> None:
     long = "put the " + "very " * 80 + "red block in the green bowl"
     short = "put the red block in the green bowl"
-    with caplog.at_level(logging.WARNING, logger=clip_backbone.__name__):
+    with caplog.at_level(logging.WARNING, logger=clip_encoder.__name__):
         clip.sentence_features([long, short])
         clip._sentence_cache.clear()  # encoding it again must not repeat the warning
         clip.sentence_features([long])
@@ -172,7 +167,7 @@ def test_long_instruction_warns_once_with_its_token_count(clip: FrozenCLIP, capl
 
 
 def test_default_is_clip_rn50_with_its_widths(clip: FrozenCLIP) -> None:
-    assert clip.model_name == clip_backbone.MODEL_NAME == "RN50-quickgelu"
-    assert clip.trunk_channels == clip_backbone.TRUNK_CHANNELS == (64, 256, 512, 1024, 2048)
-    assert clip.sentence_dim == clip_backbone.SENTENCE_DIM == 1024
+    assert clip.model_name == clip_registry.MODEL_NAME == "RN50-quickgelu"
+    assert clip.trunk_channels == clip_encoder.TRUNK_CHANNELS == (64, 256, 512, 1024, 2048)
+    assert clip.sentence_dim == clip_encoder.SENTENCE_DIM == 1024
     assert clip.context_length == CONTEXT_LENGTH and clip.vit_blocks is None

@@ -11,18 +11,10 @@ import torch
 from safetensors.torch import save_file
 
 from cliport.errors import UserError
-from cliport.models import rn50_bert
-from cliport.models.rn50_bert import (
-    MAX_TOKENS,
-    BERTWeightsUnavailable,
-    FrozenRN50BERT,
-    HashingTokenizer,
-    RN50WeightsUnavailable,
-    build_distilbert,
-    build_rn50_trunk,
-    imagenet_cache_file,
-    load_rn50_bert,
-)
+from cliport.models import distilbert, rn50_bert_encoder, rn50_trunk
+from cliport.models.distilbert import BERTWeightsUnavailable, HashingTokenizer, build_distilbert
+from cliport.models.rn50_bert_encoder import MAX_TOKENS, FrozenRN50BERT, load_rn50_bert
+from cliport.models.rn50_trunk import RN50WeightsUnavailable, build_rn50_trunk, imagenet_cache_file
 
 VOCAB = ["[PAD]", "[UNK]", "[CLS]", "[SEP]", "[MASK]", "pack", "push", "the", "box", "pile", "red", "block", ",", "."]
 
@@ -169,8 +161,11 @@ def test_import_is_cheap() -> None:
     import subprocess
     import sys
 
-    code = "import sys, cliport.models.rn50_bert; print('transformers' in sys.modules, 'torchvision' in sys.modules)"
-    env = {**os.environ, "PYTHONPATH": str(Path(rn50_bert.__file__).parents[2])}
+    code = (
+        "import sys, cliport.models.rn50_bert_encoder; "
+        "print('transformers' in sys.modules, 'torchvision' in sys.modules)"
+    )
+    env = {**os.environ, "PYTHONPATH": str(Path(rn50_bert_encoder.__file__).parents[2])}
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env)
     assert out.stdout.split() == ["False", "False"]
 
@@ -191,7 +186,7 @@ def test_resnet_state_dict_round_trip(
         if where == "imagenet-cache":
             # torchvision's cache file, as older files hold it: no num_batches_tracked counters.
             monkeypatch.setattr(torch.hub, "get_dir", lambda: str(tmp_path / "hub"))
-            monkeypatch.setattr(rn50_bert, "_download_reachable", lambda timeout_s=3.0: pytest.fail("no download"))
+            monkeypatch.setattr(rn50_trunk, "_download_reachable", lambda timeout_s=3.0: pytest.fail("no download"))
             path = imagenet_cache_file()
             path.parent.mkdir(parents=True)
             state = {k: v for k, v in state.items() if not k.endswith("num_batches_tracked")}
@@ -222,8 +217,8 @@ def test_imagenet_download_path(
             return state
 
     monkeypatch.setattr(torch.hub, "get_dir", lambda: str(tmp_path / "hub"))
-    monkeypatch.setattr(rn50_bert, "_download_reachable", lambda timeout_s=3.0: True)
-    monkeypatch.setattr(rn50_bert, "_imagenet_weights", FakeWeights)
+    monkeypatch.setattr(rn50_trunk, "_download_reachable", lambda timeout_s=3.0: True)
+    monkeypatch.setattr(rn50_trunk, "_imagenet_weights", FakeWeights)
     if download == "works":
         _assert_trunk_holds(build_rn50_trunk("imagenet"), state)
         return
@@ -242,7 +237,7 @@ def test_loading_a_file_leaves_the_global_random_state_alone(encoder: FrozenRN50
 
 def test_imagenet_fails_fast_and_clearly_offline(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(torch.hub, "get_dir", lambda: str(tmp_path / "empty-hub"))
-    monkeypatch.setattr(rn50_bert, "_download_reachable", lambda timeout_s=3.0: False)
+    monkeypatch.setattr(rn50_trunk, "_download_reachable", lambda timeout_s=3.0: False)
     start = time.monotonic()
     with pytest.raises(RN50WeightsUnavailable) as err:
         load_rn50_bert("imagenet", "random")
@@ -273,9 +268,7 @@ def _bad_resnet_file(tmp_path: Path, kind: str, encoder: FrozenRN50BERT) -> tupl
         *("other-model", "wrong-shape"),
     ],
 )
-def test_bad_resnet_file_is_one_clear_line(
-    encoder: FrozenRN50BERT, tmp_path: Path, kind: str, bad_weight_file
-) -> None:
+def test_bad_resnet_file_is_one_clear_line(encoder: FrozenRN50BERT, tmp_path: Path, kind: str, bad_weight_file) -> None:
     path, reason = bad_weight_file(kind, "resnet50") or _bad_resnet_file(tmp_path, kind, encoder)
     with pytest.raises(RN50WeightsUnavailable) as err:
         build_rn50_trunk(str(path))
@@ -357,7 +350,7 @@ def test_cached_hub_model_is_read_from_the_cache(
     (cache / "models--someone--tiny-distilbert" / "refs").mkdir()
     (cache / "models--someone--tiny-distilbert" / "refs" / "main").write_text("0123abcd")
     monkeypatch.setattr(constants, "HF_HUB_CACHE", str(cache))
-    monkeypatch.setattr(rn50_bert, "_hub_reachable", lambda timeout_s=3.0: pytest.fail("the cache must be enough"))
+    monkeypatch.setattr(distilbert, "_hub_reachable", lambda timeout_s=3.0: pytest.fail("the cache must be enough"))
     model, tokenizer = build_distilbert("someone/tiny-distilbert")
     assert model.config.dim == 32 and tokenizer("pack")["input_ids"] == [2, 5, 3]
 
@@ -372,7 +365,7 @@ def test_hub_bert_fails_fast_and_clearly_offline(tmp_path: Path, monkeypatch: py
         monkeypatch.setenv("HF_HUB_OFFLINE", "1")
     else:
         monkeypatch.delenv("HF_HUB_OFFLINE", raising=False)
-        monkeypatch.setattr(rn50_bert, "_hub_reachable", lambda timeout_s=3.0: False)
+        monkeypatch.setattr(distilbert, "_hub_reachable", lambda timeout_s=3.0: False)
     start = time.monotonic()
     with pytest.raises(BERTWeightsUnavailable) as err:
         build_distilbert("distilbert-base-uncased")

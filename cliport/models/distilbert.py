@@ -1,33 +1,9 @@
-"""The frozen encoder of CLIPort's RN50-BERT ablation: an ImageNet ResNet-50 trunk and a DistilBERT sentence encoder.
+"""The sentence encoder of CLIPort's RN50-BERT ablation: DistilBERT, its tokenizer and its weight sources.
 
-Image trunk: torchvision's ResNet-50 architecture; the five levels are the stem (conv1, bn1, relu,
-maxpool; 64 channels, stride 4) and layer1..layer4 (256, 512, 1024, 2048 channels at strides 4, 8, 16,
-32). Its classifier head (``avgpool``, ``fc``) is dropped. Images are normalised with the ImageNet
-mean and standard deviation, the statistics these weights were trained with. This is a deliberate
-difference from the reference CLIPort, whose RN50-BERT ablation fed the ImageNet ResNet images
-normalised with CLIP's statistics.
+The architecture is ``distilbert-base-uncased``'s (``transformers.DistilBertModel``); how a sentence
+feature is read from it is :class:`cliport.models.rn50_bert_encoder.FrozenRN50BERT`'s.
 
-Sentence encoder: ``distilbert-base-uncased``'s architecture (``transformers.DistilBertModel``); a
-sentence is the mean of ``last_hidden_state`` over its real tokens (768 wide; CLIPort takes the
-plain mean over the tokens of one unpadded sentence, which is the same thing). The decoder puts a
-trainable Linear 768 -> 1024 on it (:attr:`FrozenRN50BERT.sentence_projection`, CLIPort's
-``text_fc``). DistilBERT reads at most :data:`MAX_TOKENS` tokens, ``[CLS]`` and ``[SEP]`` included.
-
-Weight sources of the trunk (``rn50_weights`` in the agent configs):
-
-- ``"imagenet"``: torchvision's ``ResNet50_Weights.IMAGENET1K_V1`` (what CLIPort's
-  ``resnet50(pretrained=True)`` loaded), taken from torch's hub cache
-  (``torch.hub.get_dir()/checkpoints/``) when present, otherwise downloaded from download.pytorch.org.
-  Without network this fails within seconds with :class:`RN50WeightsUnavailable`, which lists the
-  offline options.
-- a path to a local file: a state dict of torchvision's ``resnet50`` (``.pt``/``.pth``/``.bin`` or
-  ``.safetensors``). The classifier's ``fc.*`` tensors may be present and are ignored (the head is not
-  used); every other tensor must be there with its shape. Batch norms' ``num_batches_tracked``
-  counters, absent from some older files, may be missing (they play no part in eval mode).
-- ``"random"``: a seeded (seed 0) random initialisation whose batch-norm statistics are calibrated
-  on noise so that its features keep unit scale (tests and benchmarks only).
-
-Weight sources of the sentence encoder (``bert_weights``):
+Weight sources (``bert_weights`` in the agent configs):
 
 - ``"distilbert-base-uncased"`` or any other Hugging Face repo id of a DistilBERT model: taken from the
   Hugging Face cache when it holds the model and its tokenizer, otherwise downloaded. Without network
@@ -48,32 +24,20 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
-import os
 import re
 import zlib
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
-from urllib.parse import urlparse
 
 import torch
 from torch import nn
 
 from cliport.errors import UserError
 from cliport.models import weights
-from cliport.models.encoders import FrozenEncoder
 
-TRUNK_CHANNELS = (64, 256, 512, 1024, 2048)
-SENTENCE_DIM = 768
-SENTENCE_PROJECTION = 1024
-IMAGENET_MEAN = (0.485, 0.456, 0.406)
-IMAGENET_STD = (0.229, 0.224, 0.225)
 RANDOM_SEED = 0
-#: DistilBERT reads at most this many tokens of an instruction, [CLS] and [SEP] included.
-MAX_TOKENS = 512
 DEFAULT_BERT = "distilbert-base-uncased"
-_TORCHVISION_HOST = ("download.pytorch.org", 443)
-_RESNET_WHAT = "torchvision resnet50 (fc.* ignored)"
 _WEIGHT_FILES = (
     "model.safetensors",
     "model.safetensors.index.json",
@@ -85,140 +49,8 @@ _VOCAB_FILES = ("vocab.txt", "tokenizer.json")
 _REPO_ID = re.compile(r"^[A-Za-z0-9][\w.-]*(/[\w.-]+)?$")
 
 
-
-class RN50WeightsUnavailable(UserError, RuntimeError):
-    """The requested ResNet-50 weights could not be loaded."""
-
-
 class BERTWeightsUnavailable(UserError, RuntimeError):
     """The requested DistilBERT weights (or its tokenizer) could not be loaded."""
-
-
-# --------------------------------------------------------------------------------------------------
-# ResNet-50 trunk
-
-
-class ResNet50Trunk(nn.Module):
-    """torchvision's ResNet-50 without its classifier head, returning the five trunk levels.
-
-    Submodule names are torchvision's (``conv1``, ``bn1``, ``layer1`` ...), so its state dict is a
-    torchvision ``resnet50`` state dict without the ``fc.*`` tensors.
-    """
-
-    def __init__(self, resnet: nn.Module) -> None:
-        super().__init__()
-        self.conv1 = resnet.conv1
-        self.bn1 = resnet.bn1
-        self.relu = resnet.relu
-        self.maxpool = resnet.maxpool
-        self.layer1 = resnet.layer1
-        self.layer2 = resnet.layer2
-        self.layer3 = resnet.layer3
-        self.layer4 = resnet.layer4
-
-    def forward(self, x: torch.Tensor) -> list[torch.Tensor]:
-        """Normalised images (N, 3, H, W) -> [(N, 64, H/4, W/4), (N, 256, H/4, W/4), (N, 512, H/8, W/8),
-        (N, 1024, H/16, W/16), (N, 2048, H/32, W/32)]."""
-        x = self.maxpool(self.relu(self.bn1(self.conv1(x))))
-        levels = [x]
-        for layer in (self.layer1, self.layer2, self.layer3, self.layer4):
-            x = layer(x)
-            levels.append(x)
-        return levels
-
-
-def _bad_rn50_file(path: Path, reason: str) -> RN50WeightsUnavailable:
-    return RN50WeightsUnavailable(f"Cannot load RN50 weights from {path}: {reason}")
-
-
-def _imagenet_weights() -> Any:
-    from torchvision.models import ResNet50_Weights
-
-    return ResNet50_Weights.IMAGENET1K_V1
-
-
-def imagenet_cache_file() -> Path:
-    """Where torch's hub cache keeps torchvision's ImageNet ResNet-50 weights (the file may not exist)."""
-    name = os.path.basename(urlparse(_imagenet_weights().url).path)
-    return Path(torch.hub.get_dir()) / "checkpoints" / name
-
-
-def _download_reachable(timeout_s: float = 3.0) -> bool:
-    """Whether download.pytorch.org answers a TCP connection within `timeout_s` seconds."""
-    return weights.host_reachable(*_TORCHVISION_HOST, timeout_s=timeout_s)
-
-
-def _rn50_offline_help(source: str, reason: str) -> str:
-    url = _imagenet_weights().url
-    return (
-        f"Cannot load RN50 weights '{source}': {reason}\n"
-        "Options without network:\n"
-        f"  * copy {url} (downloaded on a machine with network) to {imagenet_cache_file()};\n"
-        "  * copy a torchvision resnet50 state dict (.pt/.pth/.bin/.safetensors) to this machine and set "
-        "rn50_weights = '/path/to/file';\n"
-        "  * for tests and benchmarks only, set rn50_weights = 'random' (seeded random initialisation)."
-    )
-
-
-def _resnet50() -> nn.Module:
-    """torchvision's resnet50, seeded (seed 0) without touching the caller's random state."""
-    from torchvision.models import resnet50
-
-    with torch.random.fork_rng(devices=[]):
-        torch.manual_seed(RANDOM_SEED)
-        return resnet50(weights=None)
-
-
-def _load_trunk_state(trunk: ResNet50Trunk, path: Path, state: Mapping[str, torch.Tensor]) -> ResNet50Trunk:
-    """Load a torchvision resnet50 state dict into ``trunk`` strictly (``fc.*`` dropped); errors name ``path``."""
-    expected = trunk.state_dict()
-    state = {k: v for k, v in state.items() if not k.startswith("fc.")}
-    counters = [k for k in expected if k.endswith(".num_batches_tracked")]
-    if not any(k in state for k in counters):
-        state.update({k: expected[k] for k in counters})
-    weights.check_architecture(path, state, expected, _RESNET_WHAT, _bad_rn50_file)
-    trunk.load_state_dict(state, strict=True)
-    return trunk
-
-
-def build_rn50_trunk(source: str) -> ResNet50Trunk:
-    """The ResNet-50 trunk with weights from ``source`` ("imagenet", a state-dict file, or "random").
-
-    Returned in eval mode; raises :class:`RN50WeightsUnavailable` (one line naming the file for a bad
-    file, the offline options when "imagenet" cannot be had).
-    """
-    if source == "random":
-        trunk = ResNet50Trunk(_resnet50())
-        weights.calibrate_batch_norm(trunk, trunk, seed=RANDOM_SEED)
-        return trunk.eval()
-    if source == "imagenet":
-        cached = imagenet_cache_file()
-        if cached.is_file():
-            return _load_trunk_state(
-                ResNet50Trunk(_resnet50()), cached, weights.load_state_dict_file(cached, _bad_rn50_file)
-            ).eval()
-        if not _download_reachable():
-            raise RN50WeightsUnavailable(
-                _rn50_offline_help(
-                    source, f"the weights are not cached at {cached} and download.pytorch.org is unreachable."
-                )
-            )
-        try:
-            state = _imagenet_weights().get_state_dict(progress=False)
-        except Exception as err:  # urllib, hash checks and torch.load raise assorted errors for a failed download
-            raise RN50WeightsUnavailable(_rn50_offline_help(source, weights.first_sentence(err) + ".")) from err
-        return _load_trunk_state(ResNet50Trunk(_resnet50()), cached, state).eval()
-    path = Path(source).expanduser()
-    if not path.is_file():
-        raise RN50WeightsUnavailable(
-            _rn50_offline_help(source, "it is neither 'imagenet', 'random' nor an existing file.")
-        )
-    state = weights.load_state_dict_file(path, _bad_rn50_file)
-    return _load_trunk_state(ResNet50Trunk(_resnet50()), path, state).eval()
-
-
-# --------------------------------------------------------------------------------------------------
-# DistilBERT sentence encoder
 
 
 class HashingTokenizer:
@@ -432,73 +264,3 @@ def build_distilbert(source: str) -> tuple[nn.Module, Any]:
     if cached is None:
         raise BERTWeightsUnavailable(_bert_offline_help(source, "the download left no complete copy in the cache."))
     return _load_bert_folder(cached, cached)
-
-
-# --------------------------------------------------------------------------------------------------
-# The encoder
-
-
-class FrozenRN50BERT(FrozenEncoder):
-    """Frozen ImageNet ResNet-50 trunk levels (stem, layer1..4) and DistilBERT sentence features (768)."""
-
-    trunk_channels = TRUNK_CHANNELS
-    sentence_dim = SENTENCE_DIM
-    sentence_projection = SENTENCE_PROJECTION
-
-    def __init__(
-        self, trunk: ResNet50Trunk, bert: nn.Module, tokenizer: Any, rn50_source: str, bert_source: str
-    ) -> None:
-        super().__init__()
-        self.trunk = trunk
-        self.bert = bert
-        self.tokenizer = tokenizer
-        self.rn50_source = rn50_source
-        self.bert_source = bert_source
-        self.max_tokens = min(MAX_TOKENS, int(getattr(bert.config, "max_position_embeddings", MAX_TOKENS)))
-        self.register_buffer("mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), persistent=False)
-        self.register_buffer("std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), persistent=False)
-        self.freeze()
-
-    def sources(self) -> dict[str, str]:
-        return {"rn50_weights": self.rn50_source, "bert_weights": self.bert_source}
-
-    def image_module(self) -> nn.Module:
-        return self.trunk
-
-    def count_tokens(self, text: str) -> int:
-        """DistilBERT tokens of ``text``, [CLS] and [SEP] included (before truncation)."""
-        return len(self.tokenizer(text, verbose=False)["input_ids"])
-
-    def instruction_note(self, text: str) -> str | None:
-        n_tokens = self.count_tokens(text)
-        if n_tokens > self.max_tokens:
-            return f"the instruction has {n_tokens} DistilBERT tokens; DistilBERT reads the first {self.max_tokens}"
-        return None
-
-    def _trunk(self, rgb: torch.Tensor) -> list[torch.Tensor]:
-        """RGB (N, 3, H, W) in [0, 1] -> five levels (N, C_i, H / s_i, W / s_i), ImageNet-normalised input."""
-        x = ((rgb - self.mean) / self.std).to(self.image_dtype())
-        return self.trunk(x)
-
-    def _encode_sentences(self, texts: list[str]) -> torch.Tensor:
-        """Instructions (B,) -> (B, 768): mean of DistilBERT's last hidden states over each one's real tokens."""
-        batch = self.tokenizer(texts, padding=True, truncation=True, max_length=self.max_tokens, return_tensors="pt")
-        device = self.mean.device
-        ids = batch["input_ids"].to(device)
-        mask = batch["attention_mask"].to(device)
-        hidden = self.bert(input_ids=ids, attention_mask=mask).last_hidden_state  # (B, L, 768)
-        weight = mask.unsqueeze(-1).to(hidden.dtype)
-        return (hidden * weight).sum(dim=1) / weight.sum(dim=1).clamp(min=1)
-
-
-def load_rn50_bert(rn50_source: str, bert_source: str) -> FrozenRN50BERT:
-    """Load the frozen RN50-BERT encoder.
-
-    ``rn50_source``: "imagenet", a torchvision resnet50 state-dict file, or "random"; ``bert_source``:
-    "distilbert-base-uncased" (or another DistilBERT repo id), a ``save_pretrained`` folder, or "random".
-    Raises :class:`RN50WeightsUnavailable` / :class:`BERTWeightsUnavailable` with one line naming the
-    source and the problem.
-    """
-    trunk = build_rn50_trunk(rn50_source)
-    bert, tokenizer = build_distilbert(bert_source)
-    return FrozenRN50BERT(trunk, bert, tokenizer, rn50_source, bert_source)

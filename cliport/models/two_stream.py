@@ -1,0 +1,49 @@
+"""CLIPort's two-stream net: a spatial ResNet45_10s stream and a semantic stream over a frozen encoder, fused.
+
+Reproduces the reference's two-stream nets with lateral connections (cliport/models/streams/
+two_stream_attention_lang_fusion.py, ``TwoStreamAttentionLangFusionLat``, and
+two_stream_transport_lang_fusion.py, ``TwoStreamTransportLangFusionLat``): ``ResNet45_10s``
+(cliport/models/resnet_lat.py) as stream one, ``CLIPLingUNetLat`` (or ``RN50BertLingUNetLat``) as stream
+two, and ``FusionAdd`` (pick) or ``FusionConv`` (key, query) over their outputs.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from cliport.models.blocks import AddFusion, ConvFusion
+from cliport.models.encoders import EncoderNet, FrozenEncoder
+from cliport.models.lingunet import LingUNetLatDecoder
+from cliport.models.preprocess import IN_CHANNELS, transporter_normalize
+from cliport.models.resnet import ResNet45_10s
+
+
+class TwoStreamNet(EncoderNet):
+    """Spatial :class:`~cliport.models.resnet.ResNet45_10s` stream + semantic
+    :class:`~cliport.models.lingunet.LingUNetLatDecoder` stream over the frozen encoder, fused.
+
+    The spatial stream's six laterals feed the semantic decoder. ``conv_fusion``: False sums the two streams'
+    outputs (the reference's pick nets); True applies ReLU + 1x1 conv (2 * out_ch -> out_ch, no bias) to
+    [spatial, semantic] (its key and query nets). ``per_net_clip_stats``: see :class:`EncoderNet`.
+    """
+
+    def __init__(
+        self,
+        encoder: FrozenEncoder,
+        out_ch: int,
+        width: float = 1.0,
+        conv_fusion: bool = False,
+        per_net_clip_stats: bool = False,
+    ) -> None:
+        super().__init__(encoder, per_net_clip_stats)
+        self.spatial = ResNet45_10s(IN_CHANNELS, out_ch, width)
+        self.semantic = LingUNetLatDecoder(encoder, out_ch, self.spatial.lateral_widths, width)
+        self.fuse = ConvFusion(out_ch) if conv_fusion else AddFusion()
+
+    def forward(self, x: torch.Tensor, sentence: torch.Tensor | None = None) -> torch.Tensor:
+        """Raw (N, 6, H, W) (H, W multiples of 32), sentence (N, sentence_dim) -> (N, out_ch, H, W)."""
+        if sentence is None:
+            raise ValueError("the two-stream net needs a sentence feature")
+        spatial, laterals = self.spatial(transporter_normalize(x))
+        semantic = self.semantic(self.encoder_features(x), sentence, laterals, x.shape[-2:])
+        return self.fuse(spatial, semantic)
