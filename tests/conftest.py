@@ -1,7 +1,8 @@
 """Shared pytest set-up. Three tiers: the default run (the README's test command); ``e2e`` tests (end to end
 and paper-size: skipped unless ``--e2e``; CI runs them as its second command, ``pytest --e2e -m e2e``);
 ``slow`` tests (run only with ``--runslow``). GPU tests skip where CUDA is absent. Tests that build paper-size
-nets share one xdist group, so that ``-n 2 --dist loadgroup`` never holds two of them in memory at once."""
+nets are also marked ``paper_size``: CI runs them serially (``pytest --e2e -m paper_size``, no ``-n``), so that
+two of them are never in memory, or on disk, at once."""
 
 from __future__ import annotations
 
@@ -29,6 +30,19 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     )
 
 
+def pytest_configure(config: pytest.Config) -> None:
+    """Under xdist, each worker (and the subprocesses its tests start) gets its share of the cores: n workers
+    with every core's threads each oversubscribe the CPU n-fold, and OpenMP threads spinning while they wait
+    make that far worse (measured: a two-thread training step 20x slower beside another two-thread process)."""
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    if workers > 1:
+        threads = str(max(1, (os.cpu_count() or 1) // workers))
+        os.environ["OMP_NUM_THREADS"] = os.environ["MKL_NUM_THREADS"] = threads
+        import torch
+
+        torch.set_num_threads(int(threads))
+
+
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     skip_slow = pytest.mark.skip(reason="slow: pass --runslow to run")
     skip_e2e = pytest.mark.skip(reason="end to end: pass --e2e to run (CI runs them as its second command)")
@@ -38,8 +52,6 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             item.add_marker(skip_slow)
         if "e2e" in item.keywords and not config.getoption("--e2e"):
             item.add_marker(skip_e2e)
-        if "paper_size" in item.keywords:
-            item.add_marker(pytest.mark.xdist_group("paper_size"))
         if "gpu" in item.keywords:
             if cuda is None:
                 import torch
@@ -204,3 +216,19 @@ def bad_weight_file(tmp_path):
     """``bad_weight_file(kind, stem)`` -> (path, phrase) for a kind of :data:`BAD_WEIGHT_FILES` (see
     :func:`write_bad_weight_file`), None for any other kind (a model-specific one the test writes itself)."""
     return lambda kind, stem: write_bad_weight_file(tmp_path, kind, stem) if kind in BAD_WEIGHT_FILES else None
+
+
+class RunsCode:
+    """Pickles as a call of ``os.system(command)``: what a malicious checkpoint does when unpickled."""
+
+    def __init__(self, command: str) -> None:
+        self.command = command
+
+    def __reduce__(self):
+        return (os.system, (self.command,))
+
+
+@pytest.fixture
+def runs_code():
+    """``runs_code(command)``: an object whose unpickling would run the shell ``command`` (:class:`RunsCode`)."""
+    return RunsCode

@@ -107,8 +107,11 @@ def test_cliport_recipe_updates_as_the_reference_trains(
         "--n-rotations", str(N_ROTATIONS),
     )  # fmt: skip
     reference = torch.load(trained, weights_only=True)
+    trained.unlink()  # two_stream's is 2.3 GB; the checkpoints below another 2.5
 
     summary = convert_checkpoint(str(ckpt), str(tmp_path / "run"), clip_weights="checkpoint", n_rotations=N_ROTATIONS)
+    for path in folder.iterdir():
+        path.unlink()
     agent = load_agent(RunDir(str(tmp_path / "run")).checkpoint(summary["global_step"]))
     # The reference's key net reads its input in channels_last (a permuted (H, W, C) array); the same layout
     # here makes the float32 convolutions round alike (NCHW moves early key-layer updates by up to 3 %).
