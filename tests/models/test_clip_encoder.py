@@ -13,11 +13,6 @@ from cliport.models.clip_tokenizer import CONTEXT_LENGTH, instruction_token_coun
 from cliport.models.clip_weights import CLIPWeightsUnavailable, build_clip_model
 
 
-@pytest.fixture(scope="module")
-def clip() -> FrozenCLIP:
-    return load_clip("random")
-
-
 def _perturbed_state(clip: FrozenCLIP) -> dict[str, torch.Tensor]:
     # Differ from the seeded "random" init so that a silent fallback to it would be caught.
     gen = torch.Generator().manual_seed(123)

@@ -1,7 +1,7 @@
 import pytest
 import torch
 
-from cliport.models.clip_encoder import FrozenCLIP, load_clip
+from cliport.models.clip_encoder import FrozenCLIP
 from cliport.models.heads import PickHead, PlaceHead
 from cliport.models.resnet import ResNet43_8s, ResNet45_10s
 from cliport.models.semantic import SemanticNet
@@ -11,11 +11,6 @@ from cliport.models.two_stream import TwoStreamNet
 
 def _count(module: torch.nn.Module) -> int:
     return sum(p.numel() for p in module.parameters() if p.requires_grad)
-
-
-@pytest.fixture(scope="module")
-def clip() -> FrozenCLIP:
-    return load_clip("random")
 
 
 def test_resnet43_real_size_shape_and_params() -> None:

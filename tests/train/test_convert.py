@@ -96,19 +96,11 @@ def test_converted_run_acts_as_the_original_and_records_its_source(transporter_c
     np.testing.assert_array_equal(ours["place_heatmap"], theirs["place_heatmap"])
 
 
-class _RunsCode:
-    def __init__(self, marker: str) -> None:
-        self.marker = marker
-
-    def __reduce__(self):
-        return (os.system, (f"touch {self.marker}",))
-
-
-def test_every_bad_file_is_one_line_and_nothing_runs(transporter_ckpt, tmp_path, capsys) -> None:
+def test_every_bad_file_is_one_line_and_nothing_runs(transporter_ckpt, tmp_path, capsys, runs_code) -> None:
     path, _ = transporter_ckpt
     marker = tmp_path / "ran"
     evil = tmp_path / "evil.ckpt"
-    torch.save(_lightning({"attention.x": torch.zeros(1)}, callbacks=_RunsCode(str(marker))), evil)
+    torch.save(_lightning({"attention.x": torch.zeros(1)}, callbacks=runs_code(f"touch {marker}")), evil)
     msg = _error(["--from", str(evil), "--run-dir", str(tmp_path / "r1"), "--task", TASK], capsys)
     assert str(evil) in msg and "posix.system" in msg and "refused" in msg
     assert not marker.exists() and not (tmp_path / "r1").exists()
