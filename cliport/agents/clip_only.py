@@ -22,11 +22,12 @@ class CLIPOnlyAgent(PickPlaceAgent):
     def __init__(self, config: CLIPConfig, encoder: FrozenEncoder | None = None) -> None:
         encoder = encoder if encoder is not None else load_clip(config.clip_weights, config.semantic_encoder)
         stats = config.per_net_clip_stats
-        pick = PickHead(SemanticNet(encoder, 1, config.width, per_net_clip_stats=stats))
+        pick = PickHead(SemanticNet(encoder, 1, config.width, per_net_clip_stats=stats), config.map_scale)
         place = PlaceHead(
             SemanticNet(encoder, PLACE_FEATURES, config.width, per_net_clip_stats=stats),
             SemanticNet(encoder, PLACE_FEATURES, config.width, per_net_clip_stats=stats),
             config.crop_size,
             config.n_rotations,
+            config.map_scale,
         )
         super().__init__(config, pick, place, encoder)

@@ -20,12 +20,16 @@ class AgentConfig:
         lr: Adam learning rate.
         width: channel-width multiplier of the trainable nets; 1.0 is the published size, small values make
             tiny test nets.
+        map_scale: the nets run on the top-down map shrunk by this factor (area averaging; the query crop
+            shrinks alike) and their logits are grown back bilinearly, so heatmaps, pixels and labels keep
+            the map's size. 1.0 (the reference) or 0.5 (6.25 mm cells: a CPU step about 3x cheaper).
     """
 
     n_rotations: int
     crop_size: int
     lr: float
     width: float
+    map_scale: float
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict of the fields (what checkpoints store)."""
@@ -43,6 +47,8 @@ class AgentConfig:
             raise ConfigError(f"crop_size must be an even number >= 2, got {self.crop_size}")
         if self.lr <= 0:
             raise ConfigError(f"lr must be > 0, got {self.lr}")
+        if self.map_scale not in (1.0, 0.5):
+            raise ConfigError(f"map_scale must be 1.0 (the reference) or 0.5, got {self.map_scale}")
 
 
 @dataclass

@@ -20,11 +20,12 @@ class TransporterOnlyAgent(PickPlaceAgent):
     }
 
     def __init__(self, config: AgentConfig) -> None:
-        pick = PickHead(TransporterNet(1, config.width))
+        pick = PickHead(TransporterNet(1, config.width), config.map_scale)
         place = PlaceHead(
             TransporterNet(PLACE_FEATURES, config.width),
             TransporterNet(PLACE_FEATURES, config.width),
             config.crop_size,
             config.n_rotations,
+            config.map_scale,
         )
         super().__init__(config, pick, place)

@@ -22,11 +22,12 @@ class TwoStreamAgent(PickPlaceAgent):
     def __init__(self, config: CLIPConfig, encoder: FrozenEncoder | None = None) -> None:
         encoder = encoder if encoder is not None else load_clip(config.clip_weights, config.semantic_encoder)
         stats = isinstance(config, CLIPConfig) and config.per_net_clip_stats  # RN50-BERT has no CLIP
-        pick = PickHead(TwoStreamNet(encoder, 1, config.width, per_net_clip_stats=stats))
+        pick = PickHead(TwoStreamNet(encoder, 1, config.width, per_net_clip_stats=stats), config.map_scale)
         place = PlaceHead(
             TwoStreamNet(encoder, PLACE_FEATURES, config.width, conv_fusion=True, per_net_clip_stats=stats),
             TwoStreamNet(encoder, PLACE_FEATURES, config.width, conv_fusion=True, per_net_clip_stats=stats),
             config.crop_size,
             config.n_rotations,
+            config.map_scale,
         )
         super().__init__(config, pick, place, encoder)

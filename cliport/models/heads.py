@@ -29,12 +29,32 @@ from cliport.models.encoders import EncoderNet
 PLACE_FEATURES = 3
 
 
-class PickHead(nn.Module):
-    """Pads the input to a square, runs a 1-channel net and crops back: logits over all pick pixels."""
+def shrink_map(x: torch.Tensor, map_scale: float) -> torch.Tensor:
+    """(B, C, H, W) -> (B, C, round(H * s), round(W * s)) by area averaging; unchanged at ``map_scale`` 1."""
+    if map_scale == 1.0:
+        return x
+    h, w = x.shape[-2:]
+    return F.interpolate(x, size=(round(h * map_scale), round(w * map_scale)), mode="area")
 
-    def __init__(self, net: nn.Module) -> None:
+
+def grow_logits(logits: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
+    """(B, K, h, w) -> (B, K, H, W) bilinearly (pixel centres aligned); unchanged where already (H, W)."""
+    if tuple(logits.shape[-2:]) == tuple(size):
+        return logits
+    return F.interpolate(logits, size=size, mode="bilinear", align_corners=False)
+
+
+class PickHead(nn.Module):
+    """Pads the input to a square, runs a 1-channel net and crops back: logits over all pick pixels.
+
+    ``map_scale`` < 1 (not the reference's; a CPU option) runs the net on the map shrunk by that factor
+    (area averaging) and grows its logits back bilinearly, so the output keeps the input's pixels.
+    """
+
+    def __init__(self, net: nn.Module, map_scale: float = 1.0) -> None:
         super().__init__()
         self.net = net
+        self.map_scale = map_scale
         # The layout the net's input is given in (channels_last on CUDA, see PickPlaceAgent.optimize_for_device).
         self.input_memory_format = torch.contiguous_format
 
@@ -44,6 +64,8 @@ class PickHead(nn.Module):
         As the reference, the padded input and the logits are rotated by 0 degrees about the centre with
         kornia's convention, which resamples them by float32 rounding (see :mod:`cliport.models.rotation`).
         """
+        size = x.shape[-2:]
+        x = shrink_map(x, self.map_scale)
         h, w = x.shape[-2:]
         side = max(h, w)
         top, left = (side - h) // 2, (side - w) // 2
@@ -51,7 +73,7 @@ class PickHead(nn.Module):
         padded = rotation.warp(F.pad(x, (left, side - w - left, top, side - h - top)), 0.0, pivot)
         logits = self.net(padded.contiguous(memory_format=self.input_memory_format), sentence)
         logits = rotation.warp(logits[:, :1], 0.0, pivot)
-        return logits[:, 0, top : top + h, left : left + w]
+        return grow_logits(logits[:, :, top : top + h, left : left + w], size)[:, 0]
 
 
 def _group_by_sample(net: nn.Module, images_per_sample: int) -> None:
@@ -66,16 +88,22 @@ class PlaceHead(nn.Module):
     """Transporter place head: rotated query crops around the pick pixel correlated with a key map.
 
     The query net sees ``n_rotations`` crops per sample; the head sets its ``samples_per_group`` (see
-    :class:`~cliport.models.blocks.PerSampleBatchNorm2d`) to that.
+    :class:`~cliport.models.blocks.PerSampleBatchNorm2d`) to that. ``map_scale`` < 1 works as in
+    :class:`PickHead`, with crops of ``crop_size * map_scale`` pixels of the shrunk map (the same extent on
+    the table) around the pick pixel's cell there.
     """
 
-    def __init__(self, key_net: nn.Module, query_net: nn.Module, crop_size: int, n_rotations: int) -> None:
+    def __init__(
+        self, key_net: nn.Module, query_net: nn.Module, crop_size: int, n_rotations: int, map_scale: float = 1.0
+    ) -> None:
         super().__init__()
-        if crop_size % 2:
-            raise ValueError("crop_size must be even")
+        crop = round(crop_size * map_scale)
+        if crop % 2 or crop < 2 or abs(crop - crop_size * map_scale) > 1e-6:
+            raise ValueError(f"crop_size x map_scale must be an even whole number, got {crop_size} x {map_scale}")
         self.key_net = key_net
         self.query_net = query_net
-        self.crop_size = crop_size
+        self.crop_size = crop  # in the net's map pixels
+        self.map_scale = map_scale
         self.n_rotations = n_rotations
         _group_by_sample(query_net, n_rotations)
         self.input_memory_format = torch.contiguous_format
@@ -104,6 +132,11 @@ class PlaceHead(nn.Module):
 
     def forward(self, x: torch.Tensor, pick_pix: torch.Tensor, sentence: torch.Tensor | None = None) -> torch.Tensor:
         """Raw (B, 6, H, W), pick (B, 2) int (u, v), sentence (B, sentence_dim) or None -> logits (B, R, H, W)."""
+        size = x.shape[-2:]
+        if self.map_scale != 1.0:
+            x = shrink_map(x, self.map_scale)
+            limit = torch.tensor(x.shape[-2:], device=pick_pix.device) - 1
+            pick_pix = torch.minimum((pick_pix * self.map_scale).floor().long(), limit)
         b = x.shape[0]
         pad = self.crop_size // 2
         padded = F.pad(x, (pad, pad, pad, pad)).contiguous(memory_format=self.input_memory_format)
@@ -116,4 +149,4 @@ class PlaceHead(nn.Module):
             query_sentence = sentence[:, None].expand(-1, self.n_rotations, -1).reshape(b * self.n_rotations, -1)
         query = self.query_net(self.query_crops(padded, pick_pix), query_sentence)
         kernels = query.reshape(b, self.n_rotations, *query.shape[1:])
-        return transport_correlation(key, kernels)
+        return grow_logits(transport_correlation(key, kernels), size)
