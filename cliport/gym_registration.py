@@ -32,6 +32,8 @@ TASK_NAMES = (
     "place-red-in-green",
     "put-block-in-bowl-seen-colors",
     "put-block-in-bowl-unseen-colors",
+    "put-one-block-in-bowl-seen-colors",
+    "put-one-block-in-bowl-unseen-colors",
     "separating-piles-seen-colors",
     "separating-piles-unseen-colors",
     "stack-block-pyramid",

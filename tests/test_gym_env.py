@@ -31,7 +31,7 @@ def env():
 def test_every_task_is_registered() -> None:
     assert cliport.__name__ == "cliport"
     assert list(TASK_NAMES) == tasks.names(), "cliport/gym_registration.py TASK_NAMES must list every task"
-    assert len(TASK_NAMES) == 28
+    assert len(TASK_NAMES) == 30
     registered = {i for i in gym.registry if i.startswith("cliport/")}
     assert registered == {f"cliport/{name}-v0" for name in tasks.names()}
 
