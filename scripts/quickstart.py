@@ -8,25 +8,36 @@ it trains at the published width instead. Defaults: ``configs/quickstart.toml``.
 heatmaps and a GIF of a test episode the agent solved. Everything goes to out/quickstart/; results.json
 sums it up, and ``tensorboard --logdir out/quickstart`` shows the training curves and the test score. Run it
 again and it resumes: finished demos and training are kept.
+
+``--language`` runs the language lesson instead (``[language]`` in ``configs/quickstart.toml``, output in
+out/quickstart-language/): the two-stream agent on put-one-block-in-bowl-seen-colors, where only the sentence
+says which of three blocks to pick and which of two bowls to fill. Besides the test score it measures
+instruction following (another block named on each test scene: is that block picked?) and draws one scene
+under two instructions. CLIP's weights are the published ones where they can be had (Hugging Face cache or
+network), otherwise seeded random weights, said on the first line and recorded in results.json;
+``--clip-weights PATH`` takes an offline file.
 """
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import json
 import os
+import sys
 import time
 from typing import Any
 
 import torch
 
 from cliport import tasks
-from cliport.agents import load_agent
+from cliport.agents import agent_names, load_agent
 from cliport.cli.common import OneLineParser, run_cli
 from cliport.data.generate import DemoConfig, generate
 from cliport.errors import ConfigError, RunDirError
 from cliport.evaluation.evaluate import evaluate
 from cliport.evaluation.free_form import run_instruction
+from cliport.evaluation.instruction_following import instruction_following, scene_instruction, two_instructions_figure
 from cliport.train.config import TrainConfig
 from cliport.train.recipes import recipe_names
 from cliport.train.trainer import load_run_config, train
@@ -34,19 +45,47 @@ from cliport.utils.config import read_defaults
 from cliport.utils.files import write_json
 from cliport.utils.tensorboard import log_result, summary_writer
 
-AGENT = "transporter_only"
-
 
 def parse_args(device: str) -> Any:
+    early = argparse.ArgumentParser(add_help=False)
+    early.add_argument("--language", action="store_true")
+    language = early.parse_known_args()[0].language
     defaults = read_defaults("quickstart")
+    if language:
+        defaults = defaults["language"]
     per_device = defaults[device]
     parser = OneLineParser(prog="quickstart.py", description=__doc__.splitlines()[0])
+    parser.add_argument(
+        "--language",
+        action="store_true",
+        help="the language lesson: a language-conditioned agent, instruction following, a two-instruction figure",
+    )
     parser.add_argument("--task", default=defaults["task"])
-    parser.add_argument("--out", default="out/quickstart", help="output folder (demos, run, pictures, results.json)")
+    parser.add_argument("--agent", default=defaults["agent"], choices=agent_names())
+    parser.add_argument(
+        "--clip-weights",
+        default=defaults.get("clip_weights", "auto"),
+        help="CLIP's weights for agents that use CLIP: 'auto' (the published ones where they can be had, "
+        "else seeded random ones, said and recorded), 'openai', 'random' or a file",
+    )
+    parser.add_argument(
+        "--out",
+        default="out/quickstart-language" if language else "out/quickstart",
+        help="output folder (demos, run, pictures, results.json)",
+    )
     parser.add_argument("--demos", type=int, default=defaults["demos"], help="oracle demonstrations to train on")
     parser.add_argument("--steps", type=int, default=per_device["steps"], help="training steps")
     parser.add_argument("--batch-size", type=int, default=defaults["batch_size"])
     parser.add_argument("--width", type=float, default=per_device["width"], help="network width (1.0 = published)")
+    parser.add_argument(
+        "--map-scale",
+        type=float,
+        default=per_device.get("map_scale", 1.0),
+        help="the nets' map size / the top-down map's (1.0 = published; see docs/agents.md)",
+    )
+    parser.add_argument(
+        "--lr", type=float, default=defaults.get("lr"), help="Adam learning rate (default: the agent's)"
+    )
     parser.add_argument(
         "--n-rotations", type=int, help="place rotations (default: 1 where the task's place yaw says nothing, else 36)"
     )
@@ -56,6 +95,12 @@ def parse_args(device: str) -> Any:
     parser.add_argument(
         "--recipe", default=defaults["recipe"], choices=recipe_names(), help="training recipe (configs/recipes.toml)"
     )
+    parser.add_argument(
+        "--swap-scenes",
+        type=int,
+        default=defaults.get("swap_scenes", 0),
+        help="test scenes on which instruction following is measured (each gives one swap per other block)",
+    )
     args = parser.parse_args()
     for name in ("demos", "steps", "batch_size", "episodes"):
         if getattr(args, name) < 1:
@@ -64,10 +109,33 @@ def parse_args(device: str) -> Any:
     return args
 
 
-def train_config(args: Any, data_dir: str, run_dir: str, n_rotations: int) -> TrainConfig:
+def resolve_clip_weights(args: Any) -> str | None:
+    """The CLIP weights to train with (None: the agent has no CLIP); 'auto' becomes 'openai' or 'random'."""
+    if args.agent not in ("two_stream", "clip_only"):
+        return None
+    if args.clip_weights != "auto":
+        return args.clip_weights
+    from cliport.models.clip_weights import published_weights_available
+
+    if published_weights_available():
+        return "openai"
+    print(
+        "CLIP weights: the published ones cannot be had here (not in the Hugging Face cache, no network), so this "
+        "run uses seeded RANDOM CLIP weights (recorded in results.json); pass --clip-weights PATH for a file",
+        file=sys.stderr,
+    )
+    return "random"
+
+
+def train_config(args: Any, data_dir: str, run_dir: str, n_rotations: int, clip: str | None) -> TrainConfig:
+    agent_config: dict[str, Any] = {"width": args.width, "n_rotations": n_rotations, "map_scale": args.map_scale}
+    if args.lr is not None:
+        agent_config["lr"] = args.lr
+    if clip is not None:
+        agent_config["clip_weights"] = clip
     config = TrainConfig.build(
         {
-            "agent": AGENT,
+            "agent": args.agent,
             "recipe": args.recipe,
             "task": args.task,
             "n_demos": args.demos,
@@ -79,7 +147,7 @@ def train_config(args: Any, data_dir: str, run_dir: str, n_rotations: int) -> Tr
             "val_episodes": 0,
             "checkpoint_steps": [args.steps],
             "num_workers": 1,
-            "agent_config": {"width": args.width, "n_rotations": n_rotations},
+            "agent_config": agent_config,
             "env": {"camera_scale": args.camera_scale},
         }
     )
@@ -99,7 +167,8 @@ def main() -> None:
     args = parse_args(device)
     n_rotations = args.n_rotations or (36 if tasks.place_yaw_informative(args.task) else 1)
     data_dir, run_dir = os.path.join(args.out, "data"), os.path.join(args.out, "run")
-    config = train_config(args, data_dir, run_dir, n_rotations)
+    clip = resolve_clip_weights(args)
+    config = train_config(args, data_dir, run_dir, n_rotations, clip)
     timings: dict[str, float] = {}
     start = time.perf_counter()
 
@@ -109,9 +178,10 @@ def main() -> None:
     )
     timings["demos_s"] = time.perf_counter() - start
 
+    weights = f", CLIP weights {clip}" if clip is not None else ""
     print(
-        f"2/4 training {AGENT} on {device} with the {args.recipe} recipe (width {args.width}, "
-        f"{n_rotations} place rotation(s), batch {args.batch_size}) for {args.steps} steps"
+        f"2/4 training {args.agent} on {device} with the {args.recipe} recipe (width {args.width}, map scale "
+        f"{args.map_scale}, {n_rotations} place rotation(s), batch {args.batch_size}{weights}) for {args.steps} steps"
     )
     last = os.path.join(run_dir, "checkpoints", "last.pt")
     mark = time.perf_counter()
@@ -124,6 +194,11 @@ def main() -> None:
     agent = load_agent(last, device=device)
     result = evaluate(agent, args.task, "test", args.episodes, camera_scale=args.camera_scale)
     solved = [row for row in result["episodes"] if row["total_reward"] > 0.99]
+    following = None
+    if args.swap_scenes > 0:
+        seeds = [row["seed"] for row in result["episodes"]][: args.swap_scenes]
+        following = instruction_following(agent, args.task, seeds, args.camera_scale)
+        print(f"    instruction following: {following['followed']} of {following['n']} swapped instructions")
     timings["evaluation_s"] = time.perf_counter() - mark
     with contextlib.closing(summary_writer(os.path.join(run_dir, "eval", "tensorboard"))) as tensorboard:
         log_result(tensorboard, f"eval/{args.task}/test", result, args.steps)  # beside training's curves
@@ -131,22 +206,35 @@ def main() -> None:
     seed = solved[0]["seed"] if solved else result["episodes"][0]["seed"]
     print(f"4/4 heatmaps and a GIF of test episode {seed}" + ("" if solved else " (none was solved)"))
     mark = time.perf_counter()
-    instruction = tasks.make(args.task).lang_template or "solve the task"
-    rollout = run_instruction(agent, args.task, "test", seed, instruction, args.out, args.camera_scale)
+    instruction = tasks.make(args.task).lang_template or scene_instruction(args.task, seed, args.camera_scale)
+    rollout = run_instruction(
+        agent, args.task, "test", seed, instruction or "solve the task", args.out, args.camera_scale
+    )
+    figure = None
+    if following is not None:
+        path = os.path.join(args.out, f"{args.task}-seed{seed}-two-instructions.png")
+        figure = {
+            "path": path,
+            "instructions": two_instructions_figure(agent, args.task, seed, path, args.camera_scale),
+        }
     timings["pictures_s"] = time.perf_counter() - mark
     timings["total_s"] = time.perf_counter() - start
     summary = {
         "task": args.task,
+        "agent": args.agent,
         "device": device,
         "demos": {k: demos[k] for k in ("saved", "skipped_existing", "demos_per_minute", "mb_per_step")},
         "training": {
-            "agent": AGENT,
+            "agent": args.agent,
             "recipe": args.recipe,
             "steps": args.steps,
             "width": args.width,
+            "map_scale": args.map_scale,
+            "lr": agent.config.lr,
             "n_rotations": n_rotations,
             "batch_size": args.batch_size,
             "seed": args.seed,
+            "clip_weights": clip,
             "run_dir": run_dir,
         },
         "test": {k: result[k] for k in ("n_episodes", "mean_score", "ci95", "success_rate", "success_ci95")},
@@ -156,14 +244,24 @@ def main() -> None:
         "video": rollout["video"],
         "seconds": {k: round(v, 1) for k, v in timings.items()},
     }
+    if following is not None:
+        summary["instruction_following"] = {k: following[k] for k in ("rate", "n", "followed", "swaps")}
+        summary["two_instructions"] = figure
     write_json(os.path.join(args.out, "results.json"), summary)
-    print(json.dumps(summary, indent=2))
+    print(json.dumps({k: v for k, v in summary.items() if k != "instruction_following"}, indent=2))
     low, high = result["success_ci95"]
     print(
         f"\nThe agent solved {len(solved)} of {result['n_episodes']} test episodes of {args.task} "
         f"(success 95% interval {low:.0f}-{high:.0f} %; {timings['total_s'] / 60:.1f} minutes).\n"
         f"Watch episode {seed}: {rollout['video']}\nIts heatmaps: {', '.join(rollout['heatmaps'])}"
     )
+    if following is not None:
+        print(
+            f"Instruction following: {following['followed']} of {following['n']} swapped instructions picked the "
+            f"named block ({100 * following['rate']:.0f} %). One scene, two instructions: {figure['path']}"
+        )
+    if clip == "random":
+        print("CLIP's weights were random here: the agent learned the colour words from the demonstrations alone.")
 
 
 if __name__ == "__main__":

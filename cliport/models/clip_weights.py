@@ -108,6 +108,11 @@ def _cached_pretrained_file(model_name: str, tag: str) -> str | None:
     return None
 
 
+def published_weights_available(tag: str = "openai", model_name: str = MODEL_NAME) -> bool:
+    """Whether ``tag``'s weights can be had now: in the Hugging Face cache, or the hub answers."""
+    return _cached_pretrained_file(model_name, tag) is not None or _hub_reachable()
+
+
 def _bad_file(path: Path, reason: str) -> CLIPWeightsUnavailable:
     return CLIPWeightsUnavailable(f"Cannot load CLIP weights from {path}: {reason}")
 

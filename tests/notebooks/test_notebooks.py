@@ -44,13 +44,15 @@ def run_notebook(name: str, **parameters) -> dict:
 
 def test_notebooks_exist():
     names = {os.path.basename(p) for p in NOTEBOOKS}
-    assert {"quickstart.ipynb", "affordances.ipynb", "dataset_explorer.ipynb", "reproduction_study.ipynb"} <= names
+    assert {
+        "quickstart.ipynb", "language.ipynb", "affordances.ipynb", "dataset_explorer.ipynb", "reproduction_study.ipynb"
+    } <= names  # fmt: skip
 
 
 @pytest.mark.parametrize("name", [os.path.basename(p) for p in NOTEBOOKS])
 def test_notebook_runs(name, monkeypatch, tmp_path):
     monkeypatch.chdir(tmp_path)
-    run_notebook(name, **({"SMOKE": True} if name == "quickstart.ipynb" else {}))
+    run_notebook(name, **({"SMOKE": True} if name in ("quickstart.ipynb", "language.ipynb") else {}))
 
 
 def test_affordances_notebook_takes_a_converted_checkpoint(monkeypatch, tmp_path):
@@ -84,3 +86,14 @@ def test_quickstart_notebook_learns(monkeypatch, tmp_path):
     assert namespace["result"]["n_episodes"] == 20
     assert namespace["result"]["success_rate"] >= 0.8, namespace["result"]["success_rate"]
     assert namespace["rollout"]["task_reward"] > 0.99
+
+
+@pytest.mark.slow
+def test_language_notebook_learns(monkeypatch, tmp_path):
+    """With its default parameters (the CPU language lesson's settings) the notebook trains a two-stream agent
+    that solves most of its 20 test episodes and picks the block a swapped instruction names."""
+    monkeypatch.chdir(tmp_path)
+    namespace = run_notebook("language.ipynb")
+    assert namespace["result"]["n_episodes"] == 20
+    assert namespace["result"]["success_rate"] >= 0.8, namespace["result"]["success_rate"]
+    assert namespace["following"]["n"] >= 20 and namespace["following"]["rate"] >= 0.9, namespace["following"]

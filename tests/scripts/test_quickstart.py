@@ -48,3 +48,44 @@ def test_bad_settings_are_one_line(tmp_path):
     assert "--steps must be at least 1, got 0" in _one_error_line(_run("--out", str(tmp_path), "--steps", "0"))
     assert "unknown task 'nope'" in _one_error_line(_run("--out", str(tmp_path), "--task", "nope"))
     assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.e2e
+def test_the_language_lesson_measures_instruction_following_and_draws_two_instructions(tmp_path):
+    out = _run("--language", "--out", str(tmp_path), "--demos", "1", "--steps", "2", "--episodes", "1",
+               "--swap-scenes", "1", "--clip-weights", "random")  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    assert "2/4 training two_stream on cpu" in out.stdout and "CLIP weights random" in out.stdout
+    summary = json.loads((tmp_path / "results.json").read_text())
+    assert summary["agent"] == "two_stream" and summary["task"] == "put-one-block-in-bowl-seen-colors"
+    assert summary["training"]["clip_weights"] == "random" and summary["training"]["map_scale"] == 0.5
+    following = summary["instruction_following"]
+    assert following["n"] == 2 and following["rate"] == following["followed"] / 2  # two other blocks per scene
+    figure = summary["two_instructions"]
+    assert Path(figure["path"]).is_file() and len(set(figure["instructions"])) == 2
+    assert f"Instruction following: {following['followed']} of 2 swapped instructions" in out.stdout
+    assert "random here" in out.stdout
+
+
+def _quickstart_module():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("quickstart_script", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.mark.parametrize("available", [True, False])
+def test_auto_clip_weights_are_the_published_ones_where_they_can_be_had(available, monkeypatch, capsys):
+    import argparse
+
+    from cliport.models import clip_weights
+
+    quickstart = _quickstart_module()
+    monkeypatch.setattr(clip_weights, "published_weights_available", lambda *a, **k: available)
+    args = argparse.Namespace(agent="two_stream", clip_weights="auto")
+    assert quickstart.resolve_clip_weights(args) == ("openai" if available else "random")
+    assert ("RANDOM CLIP weights" in capsys.readouterr().err) == (not available)
+    assert quickstart.resolve_clip_weights(argparse.Namespace(agent="two_stream", clip_weights="/w.pt")) == "/w.pt"
+    assert quickstart.resolve_clip_weights(argparse.Namespace(agent="transporter_only", clip_weights="auto")) is None
