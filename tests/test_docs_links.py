@@ -166,7 +166,7 @@ def test_github_slugs() -> None:
     assert github_slug("A - B") == "a---b"
     assert github_slug("[Parity](parity.md) **now**") == "parity-now"
     assert github_slug("Über 3.0!") == "über-30"
-    text = "# Notes\n\n## Notes\n\nSetext\n------\n\n```\n# not a heading\n```\n\n<a name=\"here\"></a>\n\n## Notes\n"
+    text = '# Notes\n\n## Notes\n\nSetext\n------\n\n```\n# not a heading\n```\n\n<a name="here"></a>\n\n## Notes\n'
     assert anchors(text) == {"notes", "notes-1", "notes-2", "setext", "here"}
 
 

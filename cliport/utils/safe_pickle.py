@@ -83,8 +83,22 @@ def _latin1_encode(text: str, encoding: str = "utf-8") -> bytes:
 PLAIN_GLOBALS: dict[str, Any] = {
     **{
         f"builtins.{name}": getattr(builtins, name)
-        for name in ("list", "dict", "tuple", "set", "frozenset", "bytes", "bytearray", "str", "int", "float",
-                     "complex", "bool", "slice", "object")
+        for name in (
+            "list",
+            "dict",
+            "tuple",
+            "set",
+            "frozenset",
+            "bytes",
+            "bytearray",
+            "str",
+            "int",
+            "float",
+            "complex",
+            "bool",
+            "slice",
+            "object",
+        )
     },  # fmt: skip
     "collections.OrderedDict": OrderedDict,
     "_codecs.encode": _latin1_encode,
