@@ -135,8 +135,9 @@ class PlaceHead(nn.Module):
         size = x.shape[-2:]
         if self.map_scale != 1.0:
             x = shrink_map(x, self.map_scale)
-            limit = torch.tensor(x.shape[-2:], device=pick_pix.device) - 1
-            pick_pix = torch.minimum((pick_pix * self.map_scale).floor().long(), limit)
+            # The pick's cell on the shrunk map; clamped with Python bounds (no host tensor: CUDA-graph safe).
+            cell = (pick_pix * self.map_scale).floor().long()
+            pick_pix = torch.stack((cell[:, 0].clamp(max=x.shape[-2] - 1), cell[:, 1].clamp(max=x.shape[-1] - 1)), 1)
         b = x.shape[0]
         pad = self.crop_size // 2
         padded = F.pad(x, (pad, pad, pad, pad)).contiguous(memory_format=self.input_memory_format)
