@@ -27,7 +27,8 @@ class _PutOneBlockInBowl(Task):
     """Three blocks and two bowls of five different colours; one named block into one named bowl.
 
     ``block_colors`` maps each block's colour to its body id and ``bowl_colors`` each bowl's colour to its
-    pose, so that an instruction naming another block can be checked (``instruction_for``).
+    pose, and ``goal_block``/``goal_bowl`` are the colours the instruction names, so that an instruction
+    naming another block can be made (``instruction_for``) and checked.
     """
 
     unseen = False
@@ -52,7 +53,7 @@ class _PutOneBlockInBowl(Task):
             pose = self.random_pose(BLOCK)
             assert pose is not None, "three blocks always fit beside two bowls"
             self.block_colors[name] = env.add_object(shapes.box(env.client, BLOCK, pose, COLORS[name]))
-        pick, place = block_names[0], bowl_names[0]
+        pick, place = self.goal_block, self.goal_bowl = block_names[0], bowl_names[0]
         self.add_goal(
             GoalStep(
                 objects=[self.block_colors[pick]],

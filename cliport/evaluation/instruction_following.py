@@ -4,7 +4,7 @@ For each scene (a task seed), every block other than the one the task's instruct
 with the same bowl ("put the blue block in the green bowl" instead of "... red block ..."), and the agent acts
 once on the unchanged first observation. A swap is followed when the pick lands on the named block: within
 its 4 cm square footprint, in the block's own frame, plus :data:`MARGIN`. Needs a task that knows its blocks'
-colours (``block_colors``, ``bowl_colors`` and ``instruction_for``: put-one-block-in-bowl-*).
+colours (``block_colors``, ``goal_block``, ``goal_bowl`` and ``instruction_for``: put-one-block-in-bowl-*).
 """
 
 from __future__ import annotations
@@ -28,6 +28,18 @@ def on_block(pick_xy: np.ndarray, block_xy: np.ndarray, block_yaw: float) -> boo
     return max(abs(local[0]), abs(local[1])) <= BLOCK[0] / 2 + MARGIN
 
 
+def _lesson_task(task_name: str, mode: str, what: str) -> Any:
+    """The task ``task_name``; a ConfigError unless it can name any of its blocks (put-one-block-in-bowl-*)."""
+    from cliport import tasks
+
+    task = tasks.make(task_name, mode)
+    if not hasattr(task, "instruction_for"):
+        raise ConfigError(
+            f"{what} needs a task that names its blocks' colours (put-one-block-in-bowl-*), not {task_name}"
+        )
+    return task
+
+
 def instruction_following(
     agent: Any,
     task_name: str,
@@ -41,31 +53,22 @@ def instruction_following(
     ``swaps`` lists each swap: seed, instruction, named colour, the colour of the block picked (None: no
     block) and whether it was followed. ``on_swap(obs, act, instruction)`` sees every action.
     """
-    from cliport import tasks
     from cliport.env.environment import EnvConfig, Environment
     from cliport.env.transforms import quat_to_yaw
 
-    task = tasks.make(task_name, mode)
-    if not hasattr(task, "instruction_for"):
-        raise ConfigError(
-            f"instruction following needs a task that names its blocks' colours (put-one-block-in-bowl-*), "
-            f"not {task_name}"
-        )
+    task = _lesson_task(task_name, mode, "instruction following")
     swaps = []
     with Environment(EnvConfig.defaults(camera_scale=camera_scale), task=task) as env:
         for seed in seeds:
             obs = env.reset(seed=seed)
-            step = task.goals[0]
-            target_block = step.objects[0]
-            bowl = next(name for name, pose in task.bowl_colors.items() if pose is step.targets[0])
             blocks = {}
             for name, body in task.block_colors.items():
                 xyz, quat = task._pose(body)
                 blocks[name] = (np.asarray(xyz[:2]), quat_to_yaw(quat))
-            for name, body in task.block_colors.items():
-                if body == target_block:
+            for name in blocks:
+                if name == task.goal_block:
                     continue
-                instruction = task.instruction_for(name, bowl)
+                instruction = task.instruction_for(name, task.goal_bowl)
                 act = agent.act(obs, instruction)
                 pick_xy = np.asarray(act["pose0"][0][:2])
                 picked = next((other for other, (xy, yaw) in blocks.items() if on_block(pick_xy, xy, yaw)), None)
@@ -96,19 +99,15 @@ def two_instructions_figure(
     """One scene, two instructions: the task's own, and one naming another block and the other bowl; the
     observation and pick/place heatmaps of each (:func:`action_panel`) stacked in one PNG at ``path``.
     Returns the two instructions."""
-    from cliport import tasks
     from cliport.env.environment import EnvConfig, Environment
     from cliport.evaluation.visualize import action_panel, save_png
 
-    task = tasks.make(task_name, mode)
-    if not hasattr(task, "instruction_for"):
-        raise ConfigError(f"the two-instruction figure needs a put-one-block-in-bowl-* task, not {task_name}")
+    task = _lesson_task(task_name, mode, "the two-instruction figure")
     with Environment(EnvConfig.defaults(camera_scale=camera_scale), task=task) as env:
         obs = env.reset(seed=seed)
         own = task.lang_goal
-        step = task.goals[0]
-        block = next(name for name, body in task.block_colors.items() if body != step.objects[0])
-        bowl = next(name for name, pose in task.bowl_colors.items() if pose is not step.targets[0])
+        block = next(name for name in task.block_colors if name != task.goal_block)
+        bowl = next(name for name in task.bowl_colors if name != task.goal_bowl)
         other = task.instruction_for(block, bowl)
     panels = [action_panel(obs, agent.act(obs, lang), lang) for lang in (own, other)]
     save_png(path, np.concatenate(panels, axis=0))

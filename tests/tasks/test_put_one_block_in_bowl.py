@@ -30,8 +30,8 @@ def test_the_instruction_names_the_goal_block_and_bowl_among_five_colours():
             assert len({*task.block_colors, *task.bowl_colors}) == 5
             assert set(task.block_colors) | set(task.bowl_colors) <= set(TRAIN_COLORS)
             step = task.goals[0]
-            block = next(c for c, body in task.block_colors.items() if body == step.objects[0])
-            bowl = next(c for c, pose in task.bowl_colors.items() if pose is step.targets[0])
+            block, bowl = task.goal_block, task.goal_bowl
+            assert step.objects == [task.block_colors[block]] and step.targets == [task.bowl_colors[bowl]]
             assert task.lang_goal == f"put the {block} block in the {bowl} bowl" == task.instruction_for(block, bowl)
             assert task.max_steps == 2
 
