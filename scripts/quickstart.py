@@ -31,7 +31,7 @@ from typing import Any
 import torch
 
 from cliport import tasks
-from cliport.agents import agent_names, load_agent
+from cliport.agents import agent_class, agent_names, load_agent
 from cliport.cli.common import OneLineParser, run_cli
 from cliport.data.generate import DemoConfig, generate
 from cliport.errors import ConfigError, RunDirError
@@ -111,7 +111,7 @@ def parse_args(device: str) -> Any:
 
 def resolve_clip_weights(args: Any) -> str | None:
     """The CLIP weights to train with (None: the agent has no CLIP); 'auto' becomes 'openai' or 'random'."""
-    if args.agent not in ("two_stream", "clip_only"):
+    if "clip_weights" not in agent_class(args.agent).weight_sources:
         return None
     if args.clip_weights != "auto":
         return args.clip_weights

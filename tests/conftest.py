@@ -1,5 +1,5 @@
 """Shared pytest set-up. Three tiers: the default run (the README's test command); ``e2e`` tests (end to end
-and paper-size: skipped unless ``--e2e``; CI runs them as its second command, ``pytest --e2e -m e2e``);
+and paper-size: skipped unless ``--e2e``; CI runs them after the default run, ``pytest --e2e -m e2e ...``);
 ``slow`` tests (run only with ``--runslow``). GPU tests skip where CUDA is absent. Tests that build paper-size
 nets are also marked ``paper_size``: CI runs them serially (``pytest --e2e -m paper_size``, no ``-n``), so that
 two of them are never in memory, or on disk, at once."""
