@@ -14,6 +14,7 @@ import numpy as np
 from cliport.env import assets, cameras, heightmap, shapes
 from cliport.env.bullet import p
 from cliport.env.bullet import quiet_native_output as _quiet_native_output
+from cliport.env.egl import egl_works
 from cliport.env.grippers import Spatula, Suction
 from cliport.env.primitives import PickPlaceSettings, PushSettings, pick_place, push
 from cliport.env.robot import UR5
@@ -82,16 +83,17 @@ RENDERER_KINDS = ("egl", "tiny")
 
 def expected_renderer(choice: str) -> str:
     """The renderer kind ("egl" or "tiny") an Environment with the ``renderer`` setting ``choice`` uses on
-    this machine, found without starting one: "auto" is egl where an NVIDIA GPU (``/dev/nvidia0``) and
-    PyBullet's eglRenderer plugin are present. (An Environment falls back to tiny if the plugin is present
-    but fails to load; its :attr:`Environment.renderer_kind` is what it really uses.)"""
+    this machine, found without starting one: "auto" is egl where an NVIDIA GPU (``/dev/nvidia0``) is
+    present and PyBullet's eglRenderer plugin works (:func:`cliport.env.egl.egl_works`). (An Environment
+    falls back to tiny if the plugin still fails to load; its :attr:`Environment.renderer_kind` is what it
+    really uses.)"""
     if choice not in ("auto", "egl", "cpu"):
         raise ValueError(f"renderer must be 'auto', 'egl' or 'cpu', got {choice!r}")
     if choice == "cpu" or (choice == "auto" and not _gpu_present()):
         return "tiny"
     if choice == "egl":
         return "egl"
-    return "egl" if importlib.util.find_spec("eglRenderer") is not None else "tiny"
+    return "egl" if egl_works()[0] else "tiny"
 
 
 class Environment:
@@ -111,8 +113,12 @@ class Environment:
         if self.config.camera_scale <= 0:
             raise ValueError(f"camera_scale must be positive, got {self.config.camera_scale}")
         self.client = p.connect(p.DIRECT)
+        try:
+            self.renderer, self.renderer_name = self._choose_renderer(self.config.renderer)
+        except Exception:
+            p.disconnect(physicsClientId=self.client)
+            raise
         self.asset_dir = assets.new_asset_dir()
-        self.renderer, self.renderer_name = self._choose_renderer(self.config.renderer)
         #: "egl" or "tiny": recorded in demos and evaluation results (their pixels differ, see docs/workcell.md).
         self.renderer_kind = "egl" if self.renderer == p.ER_BULLET_HARDWARE_OPENGL else "tiny"
         log.info("rendering with %s", self.renderer_name)
@@ -139,6 +145,12 @@ class Environment:
             # the process; importing triton (torch does when building an optimiser) next to it
             # segfaults. TinyRenderer is as fast at the reduced resolution and safe.
             return p.ER_TINY_RENDERER, "cpu (TinyRenderer; no GPU)"
+        works, why = egl_works()  # in a child process: a failing plugin exits the process that loads it
+        if not works:
+            if choice == "egl":
+                raise RuntimeError(f"renderer='egl' was requested but PyBullet's EGL renderer fails here: {why}")
+            log.warning("PyBullet's EGL renderer fails on this machine (%s): rendering with TinyRenderer", why)
+            return p.ER_TINY_RENDERER, f"cpu (TinyRenderer; EGL fails here: {why})"
         spec = importlib.util.find_spec("eglRenderer")
         plugin = -1
         if spec is not None and spec.origin:

@@ -107,17 +107,17 @@ def evaluate(
     video_fps: int = 20,
     workers: int | None = None,
     engine: EvalEngine | None = None,
-    renderer: str = "auto",
+    renderer: str | None = None,
     step_timeout: float | None = DEFAULT_STEP_TIMEOUT,
 ) -> dict[str, Any]:
     """Episodes on the first ``n_episodes`` seeds of ``mode``; returns per-episode and summary scores, the
     worker count and the renderer the episodes used ("egl" or "tiny").
 
     The episodes run in ``workers`` simulator processes (None: one per usable core, see
-    :func:`~cliport.evaluation.engine.resolve_workers`) rendering with ``renderer`` (the workcell setting) and
-    killed as hung after ``step_timeout`` seconds without an answer, with ``agent.act_batch`` in this process,
-    or in ``engine`` when given (its task, mode, workcell and timeout are then used, and ``camera_scale``,
-    ``workers``, ``renderer`` and ``step_timeout`` ignored).
+    :func:`~cliport.evaluation.engine.resolve_workers`) rendering with ``renderer`` (the workcell setting; None:
+    ``configs/env.toml``'s) and killed as hung after ``step_timeout`` seconds without an answer, with
+    ``agent.act_batch`` in this process, or in ``engine`` when given (its task, mode, workcell and timeout are
+    then used, and ``camera_scale``, ``workers``, ``renderer`` and ``step_timeout`` ignored).
     """
     seeds = episode_seeds(mode, n_episodes)
     if engine is not None:

@@ -39,14 +39,15 @@ def validate_run(
     weights: dict[str, str] | None = None,
     progress: bool = True,
     workers: int | None = None,
-    renderer: str = "auto",
+    renderer: str | None = None,
     step_timeout: float | None = DEFAULT_STEP_TIMEOUT,
 ) -> dict[str, Any]:
     """Evaluate every saved checkpoint of ``run_dir`` not yet in its val.json on ``n_episodes`` val
-    episodes of each task of ``task`` (a task or group) in ``workers`` simulators (None: one per usable
-    core, see :func:`~cliport.evaluation.engine.resolve_workers`) rendering with ``renderer`` (the workcell
-    setting); returns the val.json content. One agent at a time: each is dropped (and, on CUDA, its cached
-    memory given back) before the next checkpoint is loaded."""
+    episodes of each task of ``task`` (a task or group) in ``workers`` simulators (None: one per usable core, see
+    :func:`~cliport.evaluation.engine.resolve_workers`) rendering with ``renderer`` (the workcell setting; None:
+    ``configs/env.toml``'s); returns the val.json content. One agent at a time: each is dropped (and, on CUDA, its
+    cached memory given back) before the next checkpoint is loaded.
+    """
     from cliport import tasks
     from cliport.agents import load_agent
 

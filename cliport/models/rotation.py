@@ -8,10 +8,16 @@ which moves the pixels of a 64-pixel crop of a 384 x 224 image by up to 0.17 px;
 resamples the image at positions off by float32 rounding (~1e-5 px). The reference rotates its pick
 input and output by 0 and its place query crops by k * 360 / n_rotations degrees; the heads here do the
 same, so that the logits agree to float precision.
+
+The geometry runs in float32 even under autocast (bfloat16 has no matrix inverse, and its 8-bit mantissa
+would move a sampling position by pixels), and a forward makes no host-to-device copy and no
+synchronising check, so that it can be captured as a CUDA graph: the constants of an angle set, image size
+and device are computed once and cached, and the pick's whole-image warp (fixed angle and pivot) is cached.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 
 import torch
@@ -28,32 +34,49 @@ def _pixel_to_unit(height: int, width: int, device: torch.device) -> torch.Tenso
     return mat
 
 
-def sampling_theta(angles_deg: torch.Tensor, pivots: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
+@functools.lru_cache(maxsize=64)
+def _angle_constants(
+    angles_deg: tuple[float, ...], size: tuple[int, int], device: torch.device
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """cos (R,), sin (R,), the pixel-to-unit matrix (1, 3, 3), its inverse and 1.0, float32 on ``device``."""
+    with torch.autocast(device.type, enabled=False):
+        rad = torch.tensor(angles_deg).float().to(device) * _PI.to(device) / 180.0
+        to_unit = _pixel_to_unit(*size, device)[None]
+        return torch.cos(rad), torch.sin(rad), to_unit, torch.inverse(to_unit), torch.tensor(1.0, device=device)
+
+
+def sampling_theta(angles_deg: tuple[float, ...], pivots: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
     """The ``affine_grid`` matrices with which kornia's ``warp_affine`` samples an image of ``size`` (H, W)
     rotated by each angle (degrees, counter-clockwise as shown with rows downwards) about each pivot.
 
-    angles_deg (R,), pivots (B, 2) as (row, col) -> (B, R, 2, 3) float32.
+    angles_deg: R angles; pivots (B, 2) as (row, col) -> (B, R, 2, 3) float32.
     """
     device = pivots.device
-    b, r = pivots.shape[0], angles_deg.shape[0]
-    rad = angles_deg.float().to(device) * _PI.to(device) / 180.0
-    cos = torch.cos(rad)[None].expand(b, r)
-    sin = torch.sin(rad)[None].expand(b, r)
-    x = pivots[:, 1].float()[:, None]
-    y = pivots[:, 0].float()[:, None]
-    one = torch.tensor(1.0, device=device)
-    zeros, ones = torch.zeros_like(cos), torch.ones_like(cos)
-    matrix = torch.stack(
-        [
-            torch.stack([cos, sin, (one - cos) * x - sin * y], -1),
-            torch.stack([-sin, cos, sin * x + (one - cos) * y], -1),
-            torch.stack([zeros, zeros, ones], -1),
-        ],
-        dim=-2,
-    ).reshape(b * r, 3, 3)
-    to_unit = _pixel_to_unit(*size, device)[None]
-    unit_from_unit = to_unit @ (matrix @ torch.inverse(to_unit))
-    return torch.inverse(unit_from_unit)[:, :2, :].reshape(b, r, 2, 3)
+    b, r = pivots.shape[0], len(angles_deg)
+    cos, sin, to_unit, unit_to_pixel, one = _angle_constants(tuple(float(a) for a in angles_deg), size, device)
+    with torch.autocast(device.type, enabled=False):
+        cos, sin = cos[None].expand(b, r), sin[None].expand(b, r)
+        x = pivots[:, 1].float()[:, None]
+        y = pivots[:, 0].float()[:, None]
+        zeros, ones = torch.zeros_like(cos), torch.ones_like(cos)
+        matrix = torch.stack(
+            [
+                torch.stack([cos, sin, (one - cos) * x - sin * y], -1),
+                torch.stack([-sin, cos, sin * x + (one - cos) * y], -1),
+                torch.stack([zeros, zeros, ones], -1),
+            ],
+            dim=-2,
+        ).reshape(b * r, 3, 3)
+        unit_from_unit = to_unit @ (matrix @ unit_to_pixel)
+        # inv_ex: the same inverse without the error check that would synchronise with the host.
+        return torch.linalg.inv_ex(unit_from_unit).inverse[:, :2, :].reshape(b, r, 2, 3)
+
+
+@functools.lru_cache(maxsize=64)
+def _warp_theta(angle_deg: float, pivot: tuple[int, int], size: tuple[int, int], device: torch.device) -> torch.Tensor:
+    """``sampling_theta`` of one angle about one pivot, (1, 2, 3) float32 on ``device``."""
+    pivots = torch.tensor([pivot], dtype=torch.float32, device=device)
+    return sampling_theta((angle_deg,), pivots, size)[:, 0]
 
 
 def _unit_coordinates(n: int, device: torch.device) -> torch.Tensor:
@@ -67,9 +90,9 @@ def warp(x: torch.Tensor, angle_deg: float, pivot: tuple[int, int]) -> torch.Ten
     x (N, C, H, W) -> (N, C, H, W); pivot (row, col).
     """
     n, c, h, w = x.shape
-    pivots = torch.tensor([pivot], dtype=torch.float32, device=x.device)
-    theta = sampling_theta(torch.tensor([angle_deg]), pivots, (h, w))[:, 0].expand(n, 2, 3)
-    grid = F.affine_grid(theta, [n, c, h, w], align_corners=False)
+    theta = _warp_theta(float(angle_deg), (int(pivot[0]), int(pivot[1])), (h, w), x.device).expand(n, 2, 3)
+    with torch.autocast(x.device.type, enabled=False):
+        grid = F.affine_grid(theta, [n, c, h, w], align_corners=False)
     return F.grid_sample(x, grid.to(x.dtype), mode="bilinear", padding_mode="zeros", align_corners=False)
 
 
@@ -83,17 +106,18 @@ def rotated_crops(x: torch.Tensor, pivots: torch.Tensor, n_rotations: int, crop_
     """
     b, c, h, w = x.shape
     device = x.device
-    angles = torch.tensor([k * 2 * 180 / n_rotations for k in range(n_rotations)])
+    angles = tuple(k * 2 * 180 / n_rotations for k in range(n_rotations))
     theta = sampling_theta(angles, pivots, (h, w))  # (B, R, 2, 3)
-    offsets = torch.arange(crop_size, device=device) - crop_size // 2
-    rows = pivots[:, 0:1].long() + offsets  # (B, crop)
-    cols = pivots[:, 1:2].long() + offsets
-    ys = _unit_coordinates(h, device)[rows][:, :, None].expand(b, crop_size, crop_size)
-    xs = _unit_coordinates(w, device)[cols][:, None, :].expand(b, crop_size, crop_size)
-    base = torch.stack([xs, ys, torch.ones_like(xs)], dim=-1).reshape(b, 1, crop_size * crop_size, 3)
-    base = base.expand(b, n_rotations, -1, -1).reshape(b * n_rotations, -1, 3)
-    grid = base.bmm(theta.reshape(b * n_rotations, 2, 3).transpose(1, 2))  # (B * R, crop * crop, 2)
-    grid = grid.reshape(b, n_rotations * crop_size, crop_size, 2)
+    with torch.autocast(device.type, enabled=False):
+        offsets = torch.arange(crop_size, device=device) - crop_size // 2
+        rows = pivots[:, 0:1].long() + offsets  # (B, crop)
+        cols = pivots[:, 1:2].long() + offsets
+        ys = _unit_coordinates(h, device)[rows][:, :, None].expand(b, crop_size, crop_size)
+        xs = _unit_coordinates(w, device)[cols][:, None, :].expand(b, crop_size, crop_size)
+        base = torch.stack([xs, ys, torch.ones_like(xs)], dim=-1).reshape(b, 1, crop_size * crop_size, 3)
+        base = base.expand(b, n_rotations, -1, -1).reshape(b * n_rotations, -1, 3)
+        grid = base.bmm(theta.reshape(b * n_rotations, 2, 3).transpose(1, 2))  # (B * R, crop * crop, 2)
+        grid = grid.reshape(b, n_rotations * crop_size, crop_size, 2)
     crops = F.grid_sample(x, grid.to(x.dtype), mode="bilinear", padding_mode="zeros", align_corners=False)
     crops = crops.reshape(b, c, n_rotations, crop_size, crop_size).transpose(1, 2)
     return crops.reshape(b * n_rotations, c, crop_size, crop_size)

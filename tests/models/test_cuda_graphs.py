@@ -270,3 +270,29 @@ def test_a_copied_agent_gets_its_own_graphs(fake_capture) -> None:
         torch.testing.assert_close(twin._pick_graphs(x, None), twin._pick_forward(x, None))
         assert not torch.allclose(twin._pick_graphs(x, None), agent._pick_graphs(x, None))
     assert twin._pick_graphs.memory is twin._place_graphs.memory is not agent._pick_graphs.memory
+
+
+@pytest.mark.parametrize("name", AGENTS)
+def test_warmed_up_forwards_build_no_tensor_from_host_data(name: str, monkeypatch) -> None:
+    """CUDA graph capture fails on a host-to-device copy (seen on the first GPU run: the pick head's
+    rotation built its matrices from Python numbers): after one eager call, the pick and place forwards
+    build no tensor from host data."""
+    torch.manual_seed(0)
+    agent = make_agent(name, {**TINY, "clip_weights": "random"} if name == "two_stream" else TINY).eval()
+    x = torch.rand(2, 6, 64, 32)
+    pick_pix = torch.tensor([[10, 5], [40, 20]])
+    sentence = agent.sentence_features(["pack the blue block"] * 2 if agent.uses_language else None)
+
+    def forwards() -> None:
+        with torch.no_grad():
+            agent._pick_forward(x, sentence)
+            agent._place_forward(x, pick_pix, sentence)
+
+    forwards()
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("a tensor was built from host data inside a warmed-up forward")
+
+    monkeypatch.setattr(torch, "tensor", refuse)
+    monkeypatch.setattr(torch, "as_tensor", refuse)
+    forwards()
