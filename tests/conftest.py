@@ -119,6 +119,24 @@ def tiny_config():
     return config
 
 
+def assert_one_error_line(code: object, stderr: str, *phrases: str, status: int | None = None) -> str:
+    """Check a command's failure: exit ``code`` non-zero (``status``: exactly that), ``stderr`` exactly one
+    line starting with ``error: `` (no traceback) and containing every one of ``phrases``; returns that line."""
+    lines = stderr.strip().splitlines()
+    assert (code not in (0, None)) if status is None else (code == status), (code, stderr)
+    assert len(lines) == 1 and lines[0].startswith("error: "), stderr
+    assert "Traceback" not in stderr, stderr
+    for phrase in phrases:
+        assert phrase in lines[0], (phrase, lines[0])
+    return lines[0]
+
+
+@pytest.fixture(scope="session")
+def one_error_line():
+    """:func:`assert_one_error_line`: ``(code, stderr, *phrases, status=None)`` -> the one ``error:`` line."""
+    return assert_one_error_line
+
+
 def _reference_image(obs: dict[str, np.ndarray]):
     """The reference agents' input for an observation: colour 0..255 and the height repeated 3x, (H, W, 6)
     float32 (a torch tensor, for the oracle's request files)."""

@@ -7,8 +7,6 @@ import torch
 from cliport.agents import PickPlaceAgent, make_agent
 
 H, W = 64, 32
-TINY = {"width": 0.125, "crop_size": 32, "n_rotations": 8}
-CONFIGS = {"transporter_only": TINY, "two_stream": {**TINY, "clip_weights": "random"}}
 INSTRUCTIONS = ["put the red block in the green bowl", "pack the blue block", "put the red block in the green bowl"]
 
 
@@ -27,7 +25,7 @@ def _observations(n: int) -> list[dict[str, np.ndarray]]:
     return scenes
 
 
-def _batch(observations: list[dict[str, np.ndarray]], seed: int) -> dict[str, object]:
+def _batch(observations: list[dict[str, np.ndarray]], seed: int, n_rotations: int) -> dict[str, object]:
     rng = np.random.default_rng(seed)
     n = len(observations)
     return {
@@ -35,25 +33,25 @@ def _batch(observations: list[dict[str, np.ndarray]], seed: int) -> dict[str, ob
         "height": torch.from_numpy(np.stack([o["height"] for o in observations])),
         "pick_pix": torch.from_numpy(rng.integers(0, [H, W], (n, 2))),
         "place_pix": torch.from_numpy(rng.integers(0, [H, W], (n, 2))),
-        "place_rot": torch.from_numpy(rng.integers(0, TINY["n_rotations"], n)),
+        "place_rot": torch.from_numpy(rng.integers(0, n_rotations, n)),
         "lang": INSTRUCTIONS[:n],
     }
 
 
-def _trained_agent(name: str) -> PickPlaceAgent:
+def _trained_agent(name: str, config: dict[str, object]) -> PickPlaceAgent:
     """A tiny agent trained a few steps, so that its heatmaps have clear maxima (not float-rounding ties)."""
     torch.manual_seed(0)
-    agent = make_agent(name, CONFIGS[name])
+    agent = make_agent(name, config)
     optimizer = torch.optim.Adam(agent.trainable_parameters(), lr=3e-3)
-    batch = _batch(_observations(3), seed=1)
+    batch = _batch(_observations(3), seed=1, n_rotations=agent.config.n_rotations)
     for _ in range(8):
         agent.train_step(batch, optimizer)
     return agent
 
 
 @pytest.mark.parametrize("name", ["transporter_only", pytest.param("two_stream", marks=pytest.mark.e2e)])
-def test_act_batch_equals_act(name: str) -> None:
-    agent = _trained_agent(name)
+def test_act_batch_equals_act(name: str, tiny_config) -> None:
+    agent = _trained_agent(name, tiny_config(name))
     observations = _observations(3)
     instructions = INSTRUCTIONS if name == "two_stream" else [None] * 3
     batched = agent.act_batch(observations, instructions)
@@ -72,17 +70,17 @@ def test_act_batch_equals_act(name: str) -> None:
         agent.act_batch(observations, instructions[:2])
 
 
-def test_two_stream_act_batch_needs_every_instruction() -> None:
-    agent = make_agent("two_stream", CONFIGS["two_stream"])
+def test_two_stream_act_batch_needs_every_instruction(tiny_config) -> None:
+    agent = make_agent("two_stream", tiny_config("two_stream"))
     with pytest.raises(ValueError, match="instruction"):
         agent.act_batch(_observations(2), [INSTRUCTIONS[0], None])
 
 
 @pytest.mark.parametrize("name", ["transporter_only", "two_stream"])
-def test_batch_loss_is_mean_of_single_losses(name: str) -> None:
+def test_batch_loss_is_mean_of_single_losses(name: str, tiny_config) -> None:
     torch.manual_seed(0)
-    agent = make_agent(name, CONFIGS[name])
-    batch = _batch(_observations(3), seed=2)
+    agent = make_agent(name, tiny_config(name))
+    batch = _batch(_observations(3), seed=2, n_rotations=agent.config.n_rotations)
     with torch.no_grad():
         loss, info = agent.compute_loss(batch)
         singles = []
@@ -94,8 +92,8 @@ def test_batch_loss_is_mean_of_single_losses(name: str) -> None:
     assert loss.item() == pytest.approx(info["loss"])
 
 
-def test_device_options_stay_off_on_cpu() -> None:
-    agent = make_agent("transporter_only", TINY).optimize_for_device()
+def test_device_options_stay_off_on_cpu(tiny_config) -> None:
+    agent = make_agent("transporter_only", tiny_config("transporter_only")).optimize_for_device()
     assert all(agent.device_options.values())
     assert agent.pick.input_memory_format == torch.contiguous_format
     assert all(p.is_contiguous() for p in agent.parameters())

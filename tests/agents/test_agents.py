@@ -13,8 +13,6 @@ from cliport.agents.config import AgentConfig, CLIPConfig
 from cliport.errors import ConfigError, UnknownNameError
 
 H, W = 64, 32
-TINY = {"width": 0.125, "crop_size": 32, "n_rotations": 8}
-TINY_TWO_STREAM = {**TINY, "clip_weights": "random"}
 RED_BLOCK, GREEN_BOWL, BLUE_BLOCK, YELLOW_BOWL = (11, 7), (45, 23), (33, 23), (55, 7)
 
 
@@ -61,12 +59,6 @@ def _fit(agent: PickPlaceAgent, targets: list, max_steps: int, check_every: int)
     return None
 
 
-@pytest.fixture(scope="module")
-def two_stream() -> PickPlaceAgent:
-    torch.manual_seed(0)
-    return make_agent("two_stream", TINY_TWO_STREAM)
-
-
 def test_registry_and_default_configs() -> None:
     assert {"transporter_only", "two_stream", "clip_only", "rn50_bert"} <= set(agent_names())
     assert agent_names() == sorted(agent_names())
@@ -93,11 +85,11 @@ def test_registry_and_default_configs() -> None:
             make_config("transporter_only", {"width": width})
 
 
-def test_action_targets_follow_the_place_heads_convention() -> None:
+def test_action_targets_follow_the_place_heads_convention(tiny_config) -> None:
     from cliport.env.heightmap import pix_to_xyz
     from cliport.env.transforms import yaw_to_quat
 
-    agent = make_agent("transporter_only", TINY)
+    agent = make_agent("transporter_only", tiny_config("transporter_only"))
     height = np.zeros((320, 160), np.float32)
     pose0 = np.array([[*pix_to_xyz((12, 34), height), *yaw_to_quat(1.0)]])
     pose1 = np.array([[*pix_to_xyz((300, 5), height), *yaw_to_quat(1.0 - math.radians(45))]])
@@ -110,8 +102,8 @@ def test_action_targets_follow_the_place_heads_convention() -> None:
 
 
 @pytest.mark.parametrize("batch_size", [1, 3])
-def test_transporter_loss_any_batch_size(batch_size: int) -> None:
-    agent = make_agent("transporter_only", TINY)
+def test_transporter_loss_any_batch_size(batch_size: int, tiny_config) -> None:
+    agent = make_agent("transporter_only", tiny_config("transporter_only"))
     target = (RED_BLOCK, GREEN_BOWL, 2, "")
     loss, info = agent.compute_loss(_batch([target] * batch_size))
     assert loss.shape == () and math.isfinite(loss.item())
@@ -133,16 +125,16 @@ def test_act_outputs(two_stream: PickPlaceAgent) -> None:
         two_stream.act(_scene(), None)
 
 
-def test_transporter_fits_pick_and_place() -> None:
+def test_transporter_fits_pick_and_place(tiny_config) -> None:
     torch.manual_seed(0)
-    agent = make_agent("transporter_only", {**TINY, "lr": 1e-3})
+    agent = make_agent("transporter_only", tiny_config("transporter_only", lr=1e-3))
     assert _fit(agent, [(RED_BLOCK, GREEN_BOWL, 3, "")], max_steps=120, check_every=10) is not None
 
 
-def test_half_size_map_fits_within_a_pixel_and_round_trips(tmp_path: Path) -> None:
+def test_half_size_map_fits_within_a_pixel_and_round_trips(tmp_path: Path, tiny_config) -> None:
     """map_scale 0.5: the nets see a map half the size, the heatmaps keep the input's; still learns a target."""
     torch.manual_seed(0)
-    agent = make_agent("transporter_only", {**TINY, "lr": 1e-3, "map_scale": 0.5})
+    agent = make_agent("transporter_only", tiny_config("transporter_only", lr=1e-3, map_scale=0.5))
     assert agent.place.crop_size == 16
     batch = _batch([(RED_BLOCK, GREEN_BOWL, 3, "")])
     optimizer = agent.make_optimizer()
@@ -166,14 +158,14 @@ def test_map_scale_outside_its_range_is_refused(scale: float) -> None:
 
 
 @pytest.mark.e2e
-def test_clip_only_fits_pick_and_place() -> None:
+def test_clip_only_fits_pick_and_place(tiny_config) -> None:
     """The semantic stream alone (random CLIP, RGB only) learns where to pick and place, with the rotation.
 
     Width 0.25: at 0.125 its last decoder stages are 2-4 channels wide, their ReLUs can all be dead at
     init, and the query net's output is then the same for every rotation (place loss stuck at log 8).
     """
     torch.manual_seed(0)
-    agent = make_agent("clip_only", {**TINY_TWO_STREAM, "lr": 3e-4, "width": 0.25})
+    agent = make_agent("clip_only", tiny_config("clip_only", lr=3e-4, width=0.25))
     target = (RED_BLOCK, GREEN_BOWL, 3, "put the red block in the green bowl")
     assert _fit(agent, [target], max_steps=80, check_every=10) is not None
 
@@ -206,10 +198,9 @@ def _assert_same_act(a: PickPlaceAgent, b: PickPlaceAgent, instruction: str | No
 
 
 @pytest.mark.parametrize("name", ["transporter_only", "two_stream"])
-def test_checkpoint_round_trip(name: str, tmp_path: Path) -> None:
+def test_checkpoint_round_trip(name: str, tmp_path: Path, tiny_config) -> None:
     torch.manual_seed(1)
-    cfg = TINY_TWO_STREAM if name == "two_stream" else TINY
-    agent = make_agent(name, cfg)
+    agent = make_agent(name, tiny_config(name))
     agent.train_step(
         _batch([(RED_BLOCK, GREEN_BOWL, 3, "put the red block in the green bowl")]), agent.make_optimizer()
     )
@@ -233,10 +224,10 @@ def test_checkpoint_round_trip(name: str, tmp_path: Path) -> None:
     _assert_same_act(agent, loaded, "put the red block in the green bowl")
 
 
-def test_checkpoints_of_the_pre_parity_networks_are_refused_in_one_line(tmp_path: Path) -> None:
+def test_checkpoints_of_the_pre_parity_networks_are_refused_in_one_line(tmp_path: Path, tiny_config) -> None:
     from cliport.errors import CheckpointError
 
-    payload = make_agent("transporter_only", TINY).checkpoint_payload()
+    payload = make_agent("transporter_only", tiny_config("transporter_only")).checkpoint_payload()
     assert payload["format"] == 2 and payload["cliport_version"]
     for fmt, phrase in ((1, "before 0.2.0 (checkpoint format 1)"), (3, "newer cliport (checkpoint format 3)")):
         path = tmp_path / f"format{fmt}.pt"
@@ -251,9 +242,9 @@ def test_checkpoints_of_the_pre_parity_networks_are_refused_in_one_line(tmp_path
 
 
 @pytest.mark.slow
-def test_checkpoint_loads_in_a_fresh_process(tmp_path: Path) -> None:
+def test_checkpoint_loads_in_a_fresh_process(tmp_path: Path, tiny_config) -> None:
     torch.manual_seed(3)
-    agent = make_agent("two_stream", TINY_TWO_STREAM)
+    agent = make_agent("two_stream", tiny_config("two_stream"))
     path = tmp_path / "agent.pt"
     agent.save_checkpoint(path)
     expected = agent.act(_scene(), "pack the box")["place_heatmap"]
@@ -271,9 +262,9 @@ def test_checkpoint_loads_in_a_fresh_process(tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
-def test_two_stream_learns_two_instructions_on_one_image() -> None:
+def test_two_stream_learns_two_instructions_on_one_image(tiny_config) -> None:
     torch.manual_seed(0)
-    agent = make_agent("two_stream", {**TINY_TWO_STREAM, "lr": 5e-4})
+    agent = make_agent("two_stream", tiny_config("two_stream", lr=5e-4))
     targets = [
         (RED_BLOCK, GREEN_BOWL, 3, "put the red block in the green bowl"),
         (BLUE_BLOCK, YELLOW_BOWL, 6, "put the blue block in the yellow bowl"),

@@ -11,9 +11,9 @@ from cliport.utils.device import bf16_native, resolve_device
 
 
 @pytest.fixture(scope="module")
-def two_stream():
-    torch.manual_seed(0)
-    return make_agent("two_stream", {"width": 0.125, "crop_size": 32, "n_rotations": 4, "clip_weights": "random"})
+def two_stream_overrides() -> dict[str, object]:
+    """This module's ``two_stream`` agent (tests/agents/conftest.py) has 4 rotations."""
+    return {"n_rotations": 4}
 
 
 def _trunk_state(agent) -> dict[str, torch.Tensor]:
@@ -52,8 +52,8 @@ def test_weights_loaded_into_a_bf16_trunk_are_kept_at_full_precision(two_stream)
     two_stream.encoder.image_module().load_state_dict(original)
 
 
-def test_nothing_applies_on_a_cpu() -> None:
-    agent = make_agent("transporter_only", {"width": 0.125, "crop_size": 32, "n_rotations": 4})
+def test_nothing_applies_on_a_cpu(tiny_config) -> None:
+    agent = make_agent("transporter_only", tiny_config("transporter_only", n_rotations=4))
     assert all(agent.device_options.values())  # asked for
     assert not any(agent.active_device_options().values())  # none applies here
     assert not bf16_native(torch.device("cpu"))

@@ -19,8 +19,6 @@ from cliport.errors import CheckpointError, ConfigError, RunDirError
 from cliport.utils.files import write_json
 from cliport.utils.run_dir import RunDir
 
-TINY = {"width": 0.125, "crop_size": 32, "n_rotations": 4}
-
 
 def _obs(seed: int = 0) -> dict[str, np.ndarray]:
     rng = np.random.default_rng(seed)
@@ -45,9 +43,9 @@ def _assert_same_weights(a: PickPlaceAgent, b: PickPlaceAgent) -> None:
 
 
 @pytest.fixture(scope="module")
-def transporter() -> PickPlaceAgent:
+def transporter(tiny_config) -> PickPlaceAgent:
     torch.manual_seed(0)
-    return make_agent("transporter_only", TINY)
+    return make_agent("transporter_only", tiny_config("transporter_only", n_rotations=4))
 
 
 def test_save_pretrained_then_from_pretrained_acts_identically_without_pickle(transporter, tmp_path, monkeypatch):
@@ -72,9 +70,9 @@ def test_save_pretrained_then_from_pretrained_acts_identically_without_pickle(tr
     _assert_same_weights(transporter, same_class)
 
 
-def test_two_stream_keeps_frozen_clip_out_and_reloads_it_from_its_source(tmp_path) -> None:
+def test_two_stream_keeps_frozen_clip_out_and_reloads_it_from_its_source(tmp_path, tiny_config) -> None:
     torch.manual_seed(0)
-    original = make_agent("two_stream", {**TINY, "clip_weights": "random"})
+    original = make_agent("two_stream", tiny_config("two_stream", n_rotations=4))
     folder = original.save_pretrained(tmp_path / "ts")
     weights = load_file(os.path.join(folder, "model.safetensors"))
     assert weights.keys() == original.trainable_state_dict().keys()

@@ -132,17 +132,16 @@ def test_resume_after_interruption(data_dir, tmp_path, monkeypatch, capsys):
         (eval_cli.main, ["--run-dir", "/nonexistent"], "run folder not found"),
     ],
 )
-def test_bad_input_is_one_clear_line(data_dir, tmp_path, capsys, main, args, message):
+def test_bad_input_is_one_clear_line(data_dir, tmp_path, capsys, one_error_line, main, args, message):
     if main is train_cli.main and "--data-dir" not in args:
         args += ["--data-dir", data_dir]
     args += ["--run-dir", str(tmp_path / "bad")] if main is train_cli.main else []
     with pytest.raises(SystemExit) as stop:
         _run(main, args)
-    err = capsys.readouterr().err.strip().splitlines()
-    assert stop.value.code == 2 and len(err) == 1 and message in err[0], err
+    one_error_line(stop.value.code, capsys.readouterr().err, message, status=2)
 
 
-def test_eval_rejects_other_agent_and_empty_lang(runs, capsys):
+def test_eval_rejects_other_agent_and_empty_lang(runs, capsys, one_error_line):
     run_dir = runs["transporter_only"]
     for args, message in [
         (
@@ -155,8 +154,7 @@ def test_eval_rejects_other_agent_and_empty_lang(runs, capsys):
         capsys.readouterr()
         with pytest.raises(SystemExit) as stop:
             _run(eval_cli.main, ["--run-dir", run_dir, *args])
-        err = capsys.readouterr().err.strip().splitlines()
-        assert stop.value.code == 2 and len(err) == 1 and message in err[0], err
+        one_error_line(stop.value.code, capsys.readouterr().err, message, status=2)
     with pytest.raises(SystemExit):
         _run(train_cli.main, ["--run-dir", run_dir, "--resume", "--agent", "two_stream"])
     assert "is a run of agent 'transporter_only'" in capsys.readouterr().err
@@ -208,7 +206,7 @@ def test_offline_default_clip_weights_fail_in_one_line(data_dir, tmp_path, capsy
     assert "Traceback" not in err
 
 
-def test_truncated_checkpoint_is_one_line(runs, tmp_path, capsys):
+def test_truncated_checkpoint_is_one_line(runs, tmp_path, capsys, one_error_line):
     import shutil
 
     run_dir = str(tmp_path / "copy")
@@ -219,8 +217,8 @@ def test_truncated_checkpoint_is_one_line(runs, tmp_path, capsys):
     capsys.readouterr()
     with pytest.raises(SystemExit) as stop:
         _run(eval_cli.main, ["--run-dir", run_dir, "--checkpoint", "5", "--n-episodes", "1"])
-    err = capsys.readouterr().err.strip().splitlines()
-    assert stop.value.code == 2 and len(err) == 1 and "step-000005.pt" in err[0] and "weights_only" not in err[0]
+    err = one_error_line(stop.value.code, capsys.readouterr().err, "step-000005.pt", status=2)
+    assert "weights_only" not in err
 
 
 def test_bad_widths_are_rejected(data_dir, tmp_path, capsys):

@@ -33,11 +33,10 @@ from cliport.cli.common import run_cli
         ),
     ],
 )
-def test_bad_worker_counts_are_one_clear_line(tmp_path, capsys, main, args, message):
+def test_bad_worker_counts_are_one_clear_line(tmp_path, capsys, one_error_line, main, args, message):
     if main is train_cli.main:
         args = [*args, "--run-dir", str(tmp_path / "run"), "--data-dir", str(tmp_path / "no-data")]
     with pytest.raises(SystemExit) as stop:
         run_cli(lambda: main(args))
-    err = capsys.readouterr().err.strip().splitlines()
-    assert stop.value.code == 2 and len(err) == 1 and err[0].startswith("error: ") and message in err[0], err
+    one_error_line(stop.value.code, capsys.readouterr().err, message, status=2)
     assert not (tmp_path / "run").exists()

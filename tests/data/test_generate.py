@@ -65,11 +65,10 @@ def test_truncated_file_is_reported_by_name(data_dir, tmp_path):
         load_episode(str(bad))
 
 
-def test_cli_reports_bad_input(capsys):
+def test_cli_reports_bad_input(capsys, one_error_line):
     with pytest.raises(SystemExit) as exit_info:
         demos_cli.run_cli(lambda: demos_cli.main(["--task", "no-such-task", "--n", "1"]))
-    assert exit_info.value.code == 2
-    assert "unknown task 'no-such-task'" in capsys.readouterr().err
+    one_error_line(exit_info.value.code, capsys.readouterr().err, "unknown task 'no-such-task'", status=2)
 
 
 def test_rerun_regenerates_truncated_and_foreign_files(data_dir):

@@ -209,7 +209,9 @@ BAD = {
 
 
 @pytest.mark.parametrize("case", list(BAD))
-def test_bad_file_one_error_line_naming_it_and_nothing_written(case, datasets, tmp_path, monkeypatch, capsys):
+def test_bad_file_one_error_line_naming_it_and_nothing_written(
+    case, datasets, tmp_path, monkeypatch, capsys, one_error_line
+):
     _, src, seeds = datasets
     copy = str(tmp_path / f"{TASK}-train")
     shutil.copytree(src, copy)
@@ -220,16 +222,12 @@ def test_bad_file_one_error_line_naming_it_and_nothing_written(case, datasets, t
     monkeypatch.setattr("sys.argv", ["cliport-import", "--from", copy, "--task", TASK, "--data-dir", data])
     with pytest.raises(SystemExit) as exit_info:
         entry()
-    assert exit_info.value.code == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("error: "), err
-    for word in [name, *words]:
-        assert word in err[0], (word, err[0])
+    one_error_line(exit_info.value.code, capsys.readouterr().err, name, *words, status=2)
     assert not os.path.exists(os.path.join(copy, "PWNED"))
     assert not os.path.exists(dataset_dir(data, TASK, "train"))
 
 
-def test_wrong_mode_format_and_bounds_are_one_line(datasets, tmp_path, monkeypatch, capsys):
+def test_wrong_mode_format_and_bounds_are_one_line(datasets, tmp_path, monkeypatch, capsys, one_error_line):
     _, src, _ = datasets
     data = str(tmp_path / "data")
     cases = [
@@ -241,10 +239,7 @@ def test_wrong_mode_format_and_bounds_are_one_line(datasets, tmp_path, monkeypat
         monkeypatch.setattr("sys.argv", ["cliport-import", "--task", TASK, "--data-dir", data, *argv])
         with pytest.raises(SystemExit) as exit_info:
             entry()
-        err = capsys.readouterr().err.strip().splitlines()
-        assert exit_info.value.code == 2 and len(err) == 1 and err[0].startswith("error: "), err
-        for word in words:
-            assert word in err[0], (word, err[0])
+        one_error_line(exit_info.value.code, capsys.readouterr().err, *words, status=2)
     assert not os.path.exists(data)
 
 

@@ -14,11 +14,10 @@ from cliport.utils.files import write_json
 from cliport.utils.run_dir import RunDir
 
 TASK = "block-insertion"
-TINY = {"width": 0.125, "n_rotations": 4, "crop_size": 32}
 
 
 def make_run(
-    root: str, agent_name: str = "transporter_only", agent_config: dict | None = None, sharpen_on: dict | None = None
+    root: str, agent_config: dict, agent_name: str = "transporter_only", sharpen_on: dict | None = None
 ) -> str:
     """A run folder holding config.json, checkpoints/step-000001.pt, last.pt and val.json (best = 1).
 
@@ -35,7 +34,6 @@ def make_run(
     from cliport.agents import make_agent
     from cliport.train.config import TrainConfig
 
-    agent_config = TINY if agent_config is None else agent_config
     config = TrainConfig.build(
         {"agent": agent_name, "task": TASK, "agent_config": agent_config, "env": {"camera_scale": 0.5}}
     )
@@ -106,8 +104,9 @@ def sim_scene():
 
 
 @pytest.fixture(scope="session")
-def tiny_run(tmp_path_factory, sim_scene):
-    return make_run(str(tmp_path_factory.mktemp("run")), sharpen_on=sim_scene[0])
+def tiny_run(tmp_path_factory, sim_scene, tiny_config):
+    config = tiny_config("transporter_only", n_rotations=4)
+    return make_run(str(tmp_path_factory.mktemp("run")), config, sharpen_on=sim_scene[0])
 
 
 @pytest.fixture

@@ -19,7 +19,6 @@ from cliport.utils.files import read_json, write_json
 from cliport.utils.run_dir import RunDir
 
 TASK = "block-insertion"
-TINY = {"width": 0.125, "n_rotations": 4, "crop_size": 32}
 COMMIT = "0123456789abcdef0123456789abcdef01234567"
 
 
@@ -44,15 +43,16 @@ def offline_hub(tmp_path, monkeypatch):
 
 
 @pytest.fixture(scope="module")
-def trained_run(tmp_path_factory):
+def trained_run(tmp_path_factory, tiny_config):
     """A tiny run: config.json, checkpoints/step-000002.pt, last.pt (with trainer state), val.json, an eval."""
     from cliport.agents import make_agent
     from cliport.train.config import TrainConfig
 
     root = str(tmp_path_factory.mktemp("run"))
     run = RunDir(root)
+    tiny = tiny_config("transporter_only", n_rotations=4)
     config = TrainConfig.build({"agent": "transporter_only", "task": TASK, "n_demos": 10, "n_steps": 2,
-                                "agent_config": TINY, "env": {"camera_scale": 0.5}})  # fmt: skip
+                                "agent_config": tiny, "env": {"camera_scale": 0.5}})  # fmt: skip
     write_json(run.config, config.to_dict())
     torch.manual_seed(0)
     agent = make_agent("transporter_only", config.agent_config)
@@ -71,14 +71,17 @@ def _push(argv: list[str]) -> None:
     run_cli(lambda: push_cli.main(argv))
 
 
-def _one_error(main, capsys) -> str:
-    capsys.readouterr()
-    with pytest.raises(SystemExit) as stop:
-        run_cli(main)
-    assert stop.value.code == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("error: "), err
-    return err[0]
+@pytest.fixture
+def cli_error(capsys, one_error_line):
+    """``cli_error(main)``: the one ``error:`` line (exit status 2) that ``run_cli(main)`` ends with."""
+
+    def run(main) -> str:
+        capsys.readouterr()
+        with pytest.raises(SystemExit) as stop:
+            run_cli(main)
+        return one_error_line(stop.value.code, capsys.readouterr().err, status=2)
+
+    return run
 
 
 def _files(folder) -> set[str]:
@@ -178,23 +181,23 @@ def test_hub_run_resolves_from_the_cache_and_acts_like_the_original(trained_run,
     np.testing.assert_array_equal(a["place_heatmap"], c["place_heatmap"])
 
 
-def test_uncached_hub_run_is_one_line(capsys):
-    err = _one_error(lambda: eval_cli.main(["--run-dir", "hf://org/missing"]), capsys)
+def test_uncached_hub_run_is_one_line(cli_error):
+    err = cli_error(lambda: eval_cli.main(["--run-dir", "hf://org/missing"]))
     assert "hf://org/missing is not in the local Hugging Face cache" in err
     assert "HF_HUB_OFFLINE" in err and "hf download org/missing" in err and "local run folder" in err
-    err = _one_error(lambda: eval_cli.main(["--run-dir", "hf://org/missing@v2"]), capsys)
+    err = cli_error(lambda: eval_cli.main(["--run-dir", "hf://org/missing@v2"]))
     assert "hf download org/missing --revision v2" in err
-    err = _one_error(lambda: eval_cli.main(["--run-dir", "hf://no-slash"]), capsys)
+    err = cli_error(lambda: eval_cli.main(["--run-dir", "hf://no-slash"]))
     assert "hf://org/name" in err
 
 
-def test_push_errors_are_one_line(trained_run, tmp_path, monkeypatch, capsys):
+def test_push_errors_are_one_line(trained_run, tmp_path, monkeypatch, cli_error):
     (tmp_path / "full").mkdir()
     (tmp_path / "full" / "x").write_text("x")
-    err = _one_error(lambda: push_cli.main(["--run-dir", trained_run, "--repo", "org/t", "--local-dir",
-                                            str(tmp_path / "full")]), capsys)  # fmt: skip
+    err = cli_error(lambda: push_cli.main(["--run-dir", trained_run, "--repo", "org/t", "--local-dir",
+                                           str(tmp_path / "full")]))  # fmt: skip
     assert "not empty" in err
-    err = _one_error(lambda: push_cli.main(["--run-dir", str(tmp_path / "nope"), "--repo", "org/t"]), capsys)
+    err = cli_error(lambda: push_cli.main(["--run-dir", str(tmp_path / "nope"), "--repo", "org/t"]))
     assert "run folder not found" in err
 
     from huggingface_hub import HfApi
@@ -203,7 +206,7 @@ def test_push_errors_are_one_line(trained_run, tmp_path, monkeypatch, capsys):
         raise ConnectionError("no network")
 
     monkeypatch.setattr(HfApi, "create_repo", refuse)
-    err = _one_error(lambda: push_cli.main(["--run-dir", trained_run, "--repo", "org/t"]), capsys)
+    err = cli_error(lambda: push_cli.main(["--run-dir", trained_run, "--repo", "org/t"]))
     assert "org/t" in err and "ConnectionError: no network" in err
 
 

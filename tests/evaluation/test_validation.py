@@ -29,11 +29,11 @@ def test_validation_beside_training_matches_validation_after_it(tmp_path, make_s
     assert set(a["checkpoints"]) == {"2", "4"} and a == b
 
 
-def test_bad_val_mode_is_one_line(tmp_path, capsys):
+def test_bad_val_mode_is_one_line(tmp_path, capsys, one_error_line):
     with pytest.raises(SystemExit) as stop:
         _train(str(tmp_path), str(tmp_path / "run"), "sometimes")
-    err = capsys.readouterr().err.strip().splitlines()
-    assert stop.value.code == 2 and err == ["error: val_mode must be auto, after or beside, got 'sometimes'"]
+    err = one_error_line(stop.value.code, capsys.readouterr().err, status=2)
+    assert err == "error: val_mode must be auto, after or beside, got 'sometimes'"
 
 
 @pytest.fixture(scope="module")

@@ -206,15 +206,14 @@ def test_a_dropped_module_is_freed_without_the_cycle_collector(fake_capture) -> 
         gc.enable()
 
 
-TINY = {"width": 0.125, "crop_size": 32, "n_rotations": 4}
 AGENTS = ["transporter_only", "two_stream"]
 
 
 @pytest.mark.parametrize("name", AGENTS)
-def test_agents_forwards_are_per_sample_when_padded(name: str, fake_capture) -> None:
+def test_agents_forwards_are_per_sample_when_padded(name: str, fake_capture, tiny_config) -> None:
     """The pick and place forwards give each sample the same logits alone and inside a padded batch."""
     torch.manual_seed(0)
-    agent = make_agent(name, {**TINY, "clip_weights": "random"} if name == "two_stream" else TINY).eval()
+    agent = make_agent(name, tiny_config(name, n_rotations=4)).eval()
     rng = np.random.default_rng(0)
     x = torch.from_numpy(rng.uniform(0, 1, (3, 6, 64, 32)).astype(np.float32))
     pick_pix = torch.tensor([[10, 5], [40, 20], [60, 30]])
@@ -234,8 +233,8 @@ def test_agents_forwards_are_per_sample_when_padded(name: str, fake_capture) -> 
 
 
 @pytest.mark.parametrize("name", AGENTS)
-def test_dropped_agents_are_freed_without_the_cycle_collector(name: str, fake_capture) -> None:
-    config = {**TINY, "clip_weights": "random"} if name == "two_stream" else TINY
+def test_dropped_agents_are_freed_without_the_cycle_collector(name: str, fake_capture, tiny_config) -> None:
+    config = tiny_config(name, n_rotations=4)
     obs = {"color": np.zeros((64, 32, 3), np.uint8), "height": np.zeros((64, 32), np.float32)}
 
     def use_once() -> weakref.ref:
@@ -259,9 +258,9 @@ def test_dropped_agents_are_freed_without_the_cycle_collector(name: str, fake_ca
         gc.enable()
 
 
-def test_a_copied_agent_gets_its_own_graphs(fake_capture) -> None:
+def test_a_copied_agent_gets_its_own_graphs(fake_capture, tiny_config) -> None:
     torch.manual_seed(0)
-    agent = make_agent("transporter_only", TINY)
+    agent = make_agent("transporter_only", tiny_config("transporter_only", n_rotations=4))
     x = torch.rand(2, 6, 64, 32)
     with torch.no_grad():
         agent._pick_graphs(x, None)
@@ -273,12 +272,12 @@ def test_a_copied_agent_gets_its_own_graphs(fake_capture) -> None:
 
 
 @pytest.mark.parametrize("name", AGENTS)
-def test_warmed_up_forwards_build_no_tensor_from_host_data(name: str, monkeypatch) -> None:
+def test_warmed_up_forwards_build_no_tensor_from_host_data(name: str, monkeypatch, tiny_config) -> None:
     """CUDA graph capture fails on a host-to-device copy (seen on the first GPU run: the pick head's
     rotation built its matrices from Python numbers): after one eager call, the pick and place forwards
     build no tensor from host data."""
     torch.manual_seed(0)
-    agent = make_agent(name, {**TINY, "clip_weights": "random"} if name == "two_stream" else TINY).eval()
+    agent = make_agent(name, tiny_config(name, n_rotations=4)).eval()
     x = torch.rand(2, 6, 64, 32)
     pick_pix = torch.tensor([[10, 5], [40, 20]])
     sentence = agent.sentence_features(["pack the blue block"] * 2 if agent.uses_language else None)

@@ -59,7 +59,7 @@ def test_recipe_curves_plots_and_tabulates_every_seed(tmp_path) -> None:
     assert "| ravens | 10 | 1 | 100: 80.0 / 85.0 / 200: 90.0 / - |" in done.stdout
 
 
-def test_recipe_curves_names_a_folder_without_results(tmp_path) -> None:
+def test_recipe_curves_names_a_folder_without_results(tmp_path, one_error_line) -> None:
     done = _run("recipe_curves.py", str(tmp_path))
-    assert done.returncode == 2
-    assert done.stderr.strip() == f"error: {tmp_path}: no results.json (run cliport-reproduce there first)"
+    err = one_error_line(done.returncode, done.stderr, status=2)
+    assert err == f"error: {tmp_path}: no results.json (run cliport-reproduce there first)"

@@ -34,11 +34,15 @@ def _cli(argv: list[str], capsys) -> tuple[int, str, str]:
     return code, out, err
 
 
-def _error(argv: list[str], capsys) -> str:
-    code, _, err = _cli(argv, capsys)
-    lines = err.strip().splitlines()
-    assert code == 2 and len(lines) == 1 and lines[0].startswith("error: "), (code, err)
-    return lines[0]
+@pytest.fixture
+def convert_error(capsys, one_error_line):
+    """``convert_error(argv)``: cliport-convert's one ``error:`` line (exit status 2) for ``argv``."""
+
+    def run(argv: list[str]) -> str:
+        code, _, err = _cli(argv, capsys)
+        return one_error_line(code, err, status=2)
+
+    return run
 
 
 def _lightning(state: dict[str, torch.Tensor], **extra: object) -> dict[str, object]:
@@ -96,41 +100,41 @@ def test_converted_run_acts_as_the_original_and_records_its_source(transporter_c
     np.testing.assert_array_equal(ours["place_heatmap"], theirs["place_heatmap"])
 
 
-def test_every_bad_file_is_one_line_and_nothing_runs(transporter_ckpt, tmp_path, capsys, runs_code) -> None:
+def test_every_bad_file_is_one_line_and_nothing_runs(transporter_ckpt, tmp_path, convert_error, runs_code) -> None:
     path, _ = transporter_ckpt
     marker = tmp_path / "ran"
     evil = tmp_path / "evil.ckpt"
     torch.save(_lightning({"attention.x": torch.zeros(1)}, callbacks=runs_code(f"touch {marker}")), evil)
-    msg = _error(["--from", str(evil), "--run-dir", str(tmp_path / "r1"), "--task", TASK], capsys)
+    msg = convert_error(["--from", str(evil), "--run-dir", str(tmp_path / "r1"), "--task", TASK])
     assert str(evil) in msg and "posix.system" in msg and "refused" in msg
     assert not marker.exists() and not (tmp_path / "r1").exists()
 
     cut = tmp_path / "cut.ckpt"
     cut.write_bytes(path.read_bytes()[:100_000])
-    msg = _error(["--from", str(cut), "--run-dir", str(tmp_path / "r2")], capsys)
+    msg = convert_error(["--from", str(cut), "--run-dir", str(tmp_path / "r2")])
     assert "not a zip-format PyTorch checkpoint" in msg
 
     other = tmp_path / "resnet.ckpt"
     torch.save(_lightning({"layer1.weight": torch.zeros(2)}), other)
-    msg = _error(["--from", str(other), "--run-dir", str(tmp_path / "r3"), "--task", TASK], capsys)
+    msg = convert_error(["--from", str(other), "--run-dir", str(tmp_path / "r3"), "--task", TASK])
     assert "not a CLIPort checkpoint" in msg and "clip_lingunet_transporter" in msg
 
     unet = tmp_path / "unet.ckpt"
     torch.save(_lightning({"attention.attn_stream_one.up1.conv.double_conv.0.weight": torch.zeros(2)}), unet)
-    msg = _error(["--from", str(unet), "--run-dir", str(tmp_path / "r4"), "--task", TASK], capsys)
+    msg = convert_error(["--from", str(unet), "--run-dir", str(tmp_path / "r4"), "--task", TASK])
     assert "agent type cliport does not have" in msg and "supported reference agent types" in msg
 
     argv = ["--from", str(path), "--run-dir", str(tmp_path / "r5"), "--agent-type", "clip_lingunet_transporter"]
-    assert "does not hold the clip_lingunet_transporter agent's nets: they are transporter's" in _error(argv, capsys)
+    assert "does not hold the clip_lingunet_transporter agent's nets: they are transporter's" in convert_error(argv)
     assert not (tmp_path / "r5").exists()
 
-    assert "invalid choice" in _error(["--from", str(path), "--run-dir", "x", "--agent-type", "rn50"], capsys)
+    assert "invalid choice" in convert_error(["--from", str(path), "--run-dir", "x", "--agent-type", "rn50"])
     nameless = tmp_path / "steps=1.ckpt"
     nameless.write_bytes(path.read_bytes())
-    assert "pass --task" in _error(["--from", str(nameless), "--run-dir", str(tmp_path / "r6")], capsys)
+    assert "pass --task" in convert_error(["--from", str(nameless), "--run-dir", str(tmp_path / "r6")])
     (tmp_path / "r7").mkdir()
     (tmp_path / "r7" / "config.json").write_text("{}")
-    assert "already holds a run" in _error(["--from", str(path), "--run-dir", str(tmp_path / "r7")], capsys)
+    assert "already holds a run" in convert_error(["--from", str(path), "--run-dir", str(tmp_path / "r7")])
 
 
 def test_the_safe_loader_keeps_lightning_data_classes(transporter_ckpt, tmp_path, monkeypatch) -> None:

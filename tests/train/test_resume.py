@@ -14,8 +14,6 @@ from cliport.train.trainer import train
 from cliport.utils.files import load_torch, save_torch
 from cliport.utils.run_dir import RunDir
 
-TINY = {"width": 0.125, "crop_size": 32, "n_rotations": 4}
-
 
 def _batch(seed: int) -> dict[str, torch.Tensor]:
     g = torch.Generator().manual_seed(seed)
@@ -28,20 +26,20 @@ def _batch(seed: int) -> dict[str, torch.Tensor]:
     }
 
 
-def _agent(layout: torch.memory_format) -> PickPlaceAgent:
+def _agent(config: dict, layout: torch.memory_format) -> PickPlaceAgent:
     torch.manual_seed(0)
-    agent = make_agent("transporter_only", TINY)
+    agent = make_agent("transporter_only", config)
     for head in (agent.pick, agent.place):
         head.to(memory_format=layout)
         head.input_memory_format = layout
     return agent
 
 
-def _saved_run(layout: torch.memory_format) -> tuple[dict, dict]:
+def _saved_run(config: dict, layout: torch.memory_format) -> tuple[dict, dict]:
     """Weights and optimiser state after two training steps, the moments in ``layout`` (as a run whose
     parameters were in that layout saves them; trained in NCHW, since channels_last backward crashes on
     the CPU in torch 2.14, which the CPU path never uses)."""
-    agent = _agent(torch.contiguous_format)
+    agent = _agent(config, torch.contiguous_format)
     optimizer = torch.optim.Adam(agent.trainable_parameters(), lr=1e-3, foreach=True)
     for seed in (1, 2):
         agent.train_step(_batch(seed), optimizer)
@@ -53,8 +51,8 @@ def _saved_run(layout: torch.memory_format) -> tuple[dict, dict]:
     return agent.state_dict(), state
 
 
-def _resume(weights: dict, state: dict, layout: torch.memory_format, fused: bool):
-    agent = _agent(layout)
+def _resume(config: dict, weights: dict, state: dict, layout: torch.memory_format, fused: bool):
+    agent = _agent(config, layout)
     agent.load_state_dict(weights)
     kind = {"fused": True} if fused else {"foreach": True}
     optimizer = torch.optim.Adam(agent.trainable_parameters(), lr=1e-3, **kind)
@@ -71,16 +69,19 @@ def _conv_weights(agent: PickPlaceAgent) -> list[torch.nn.Parameter]:
     [(torch.contiguous_format, torch.channels_last), (torch.channels_last, torch.contiguous_format)],
     ids=["nchw-into-channels-last", "channels-last-into-nchw"],
 )
-def test_moments_take_the_parameters_layout(saved: torch.memory_format, resumed: torch.memory_format) -> None:
-    weights, state = _saved_run(saved)
+def test_moments_take_the_parameters_layout(
+    saved: torch.memory_format, resumed: torch.memory_format, tiny_config
+) -> None:
+    config = tiny_config("transporter_only", n_rotations=4)
+    weights, state = _saved_run(config, saved)
     # What torch alone does: the moments keep the saved strides (fused CUDA Adam rejects that).
-    plain_agent = _agent(resumed)
+    plain_agent = _agent(config, resumed)
     plain = torch.optim.Adam(plain_agent.trainable_parameters(), lr=1e-3, fused=True)
     plain.load_state_dict(state)
     assert any(plain.state[p]["exp_avg"].stride() != p.stride() for p in _conv_weights(plain_agent))
     assert not plain.param_groups[0]["fused"]  # and the file's foreach Adam replaced the fused one
 
-    agent, optimizer = _resume(weights, state, resumed, fused=True)
+    agent, optimizer = _resume(config, weights, state, resumed, fused=True)
     assert optimizer.param_groups[0]["fused"] and optimizer.param_groups[0]["lr"] == 1e-3
     convs = _conv_weights(agent)
     assert convs and all(p.is_contiguous(memory_format=resumed) for p in convs)
@@ -93,7 +94,7 @@ def test_moments_take_the_parameters_layout(saved: torch.memory_format, resumed:
 
     # The layout changes no number: one more step with the same gradients matches a resume in the saved
     # layout (gradients set by hand, for the same reason as in _saved_run).
-    reference, reference_optimizer = _resume(weights, state, saved, fused=False)
+    reference, reference_optimizer = _resume(config, weights, state, saved, fused=False)
     g = torch.Generator().manual_seed(3)
     for p, q in zip(agent.trainable_parameters(), reference.trainable_parameters(), strict=True):
         grad = torch.randn(p.shape, generator=g)
@@ -104,7 +105,7 @@ def test_moments_take_the_parameters_layout(saved: torch.memory_format, resumed:
         torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-7, msg=lambda m, name=name: f"{name}: {m}")
 
 
-def test_a_run_saved_on_cuda_resumes_on_the_cpu(tmp_path, make_synthetic_dataset, monkeypatch) -> None:
+def test_a_run_saved_on_cuda_resumes_on_the_cpu(tmp_path, make_synthetic_dataset, monkeypatch, tiny_config) -> None:
     """The trainer's own resume path: a last.pt as CUDA writes it (channels_last moments, fused Adam) goes on
     training on the CPU with NCHW moments and the CPU's foreach Adam."""
     make_synthetic_dataset(str(tmp_path), n_episodes=2)
@@ -112,7 +113,8 @@ def test_a_run_saved_on_cuda_resumes_on_the_cpu(tmp_path, make_synthetic_dataset
     overrides = {
         "agent": "transporter_only", "task": "place-red-in-green", "n_demos": 2, "n_steps": 2, "batch_size": 1,
         "data_dir": str(tmp_path), "run_dir": run_dir, "device": "cpu", "num_workers": 0, "val_episodes": 0,
-        "checkpoint_steps": [2], "checkpoint_every": 0, "agent_config": TINY,
+        "checkpoint_steps": [2], "checkpoint_every": 0,
+        "agent_config": tiny_config("transporter_only", n_rotations=4),
     }  # fmt: skip
     train(TrainConfig.build(overrides), progress=False)
     last = RunDir(run_dir).checkpoint("last")
