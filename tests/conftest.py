@@ -74,10 +74,10 @@ def reference_dir(pytestconfig: pytest.Config) -> str:
 
 @pytest.fixture(scope="session")
 def reference_oracle(reference_dir: str):
-    """A function running ``tests/reference_oracle.py --reference-dir R ARGS...`` in a subprocess."""
+    """A function running ``tests/support/reference_oracle.py --reference-dir R ARGS...`` in a subprocess."""
 
     def run(*args: str) -> None:
-        script = os.path.join(os.path.dirname(__file__), "reference_oracle.py")
+        script = os.path.join(os.path.dirname(__file__), "support", "reference_oracle.py")
         done = subprocess.run(
             [sys.executable, script, "--reference-dir", reference_dir, *args], capture_output=True, text=True
         )
@@ -89,9 +89,9 @@ def reference_oracle(reference_dir: str):
 
 @pytest.fixture(scope="session")
 def reference_utils(reference_dir: str):
-    """A function running one job of ``tests/run_reference_utils.py`` (the reference's ``utils.py``) in a
+    """A function running one job of ``tests/support/run_reference_utils.py`` (the reference's ``utils.py``) in a
     subprocess: ``(folder, job, **arrays) -> output arrays``."""
-    runner = os.path.join(os.path.dirname(__file__), "run_reference_utils.py")
+    runner = os.path.join(os.path.dirname(__file__), "support", "run_reference_utils.py")
 
     def call(folder, job: str, **arrays: np.ndarray) -> dict[str, np.ndarray]:
         src, dst = os.path.join(folder, f"{job}-in.npz"), os.path.join(folder, f"{job}-out.npz")

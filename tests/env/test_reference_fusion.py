@@ -2,7 +2,7 @@
 pixels, poses and rotations convert alike.
 
 The reference's functions (``cliport/utils/utils.py``, ``cliport/tasks/cameras.py``) run in a
-subprocess (tests/run_reference_utils.py) from the folder that ``--reference-dir`` or
+subprocess (tests/support/run_reference_utils.py) from the folder that ``--reference-dir`` or
 ``$CLIPORT_REFERENCE_DIR`` names; without one these tests are skipped.
 """
 

@@ -1,6 +1,6 @@
 """Our agents compute what the reference CLIPort code computes, given the same weights.
 
-The reference runs in a subprocess (``tests/reference_oracle.py``) from the folder named by
+The reference runs in a subprocess (``tests/support/reference_oracle.py``) from the folder named by
 ``CLIPORT_REFERENCE_DIR`` or ``--reference-dir``; without it these tests skip. For each agent the oracle
 builds the reference agent with seeded random weights rescaled so its heatmaps are not flat, and runs the
 reference's own ``act()`` on a simulator observation; ours loads the same weights through

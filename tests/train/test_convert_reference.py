@@ -1,7 +1,7 @@
 """A checkpoint written the way the reference CLIPort code writes them converts, and the converted run acts
 exactly as the reference agent that loaded the same file, on simulator observations.
 
-The reference runs in a subprocess (``tests/reference_oracle.py``; CLIPORT_REFERENCE_DIR or
+The reference runs in a subprocess (``tests/support/reference_oracle.py``; CLIPORT_REFERENCE_DIR or
 --reference-dir, skipped without it). Its three CLIP copies get different batch-norm statistics, as its
 training leaves them, so the converted run must act with each net's own.
 """

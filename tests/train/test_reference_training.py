@@ -2,7 +2,7 @@
 
 Both sides start from one checkpoint the reference code wrote (seeded weights; its CLIP copies with
 per-net batch-norm statistics), converted with ``cliport-convert``. The reference then runs its own
-``attn_training_step`` and ``transport_training_step`` (in a subprocess, ``tests/reference_oracle.py train``)
+``attn_training_step`` and ``transport_training_step`` (in a subprocess, ``tests/support/reference_oracle.py train``)
 on fixed simulator samples, augmentation off; ours runs the ``cliport`` recipe's steps on the same samples.
 Every trainable tensor's change, the U-Net batch norms' and each net's CLIP batch-norm running statistics
 must agree. Skipped without the reference code (CLIPORT_REFERENCE_DIR or --reference-dir).

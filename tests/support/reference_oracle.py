@@ -5,7 +5,7 @@ called ``cliport``) with the reference folder given by ``--reference-dir`` (the 
 README, e.g. ``../shared/reference-cliport``). Inputs and outputs are ``torch.save`` files of tensors,
 strings and numbers only.
 
-    python tests/reference_oracle.py --reference-dir R weights AGENT OUT.ckpt [--seed S] [--perturb-clip-bn]
+    python tests/support/reference_oracle.py --reference-dir R weights AGENT OUT.ckpt [--seed S] [--perturb-clip-bn]
                                                                [--act REQUEST ACT_OUT [--clip-fp16]]
         Builds the reference agent with seeded random weights, re-initialises its trainable weights so
         its heatmaps are not flat (see ``_rescale``), calibrates its CLIP's batch-norm statistics (and
@@ -14,13 +14,13 @@ strings and numbers only.
         bookkeeping) and, beside it, OUT.clip.pt: the CLIP state dict (OpenAI's keys) of the pick net.
         With --act, then runs ``act`` (below) with the agent it holds, whose state is the checkpoint's, in
         the same process (building a paper-size reference agent takes 10-25 s on a CPU).
-    python tests/reference_oracle.py --reference-dir R act AGENT CKPT REQUEST OUT [--clip-fp16]
+    python tests/support/reference_oracle.py --reference-dir R act AGENT CKPT REQUEST OUT [--clip-fp16]
         Builds the agent, loads the checkpoint's state dict and runs the reference's own act() on each
         observation of REQUEST ({"images": [(H, W, 6) float32, colour 0..255 and height x3], "lang":
         [str]}), recording the pick and place logits (the softmax inputs), the key and query outputs and
         act()'s result. The reference converts CLIP to fp16 (its build_model does); without --clip-fp16
         every CLIP copy is put back to fp32 after loading, so the nets are compared in fp32.
-    python tests/reference_oracle.py --reference-dir R train AGENT OUT.ckpt REQUEST TRAINED_OUT [--seed S]
+    python tests/support/reference_oracle.py --reference-dir R train AGENT OUT.ckpt REQUEST TRAINED_OUT [--seed S]
                                                            [--perturb-clip-bn] [--n-rotations N] [--steps K]
         As ``weights`` (the checkpoint OUT.ckpt and OUT.ckpt.clip.pt hold the state before training), then
         puts every CLIP copy back to fp32 and runs K passes (default 1) of the reference's own training step
@@ -29,7 +29,7 @@ strings and numbers only.
         transport_training_step(frame)``, what its ``training_step`` runs minus Lightning's bookkeeping.
         TRAINED_OUT gets {"state_dict": the agent's state after the steps, "losses": [(pick, place), ...]}.
         ``--n-rotations`` builds the agents with another rotation count than the reference's 36.
-    python tests/reference_oracle.py --reference-dir R clip CKPT REQUEST OUT
+    python tests/support/reference_oracle.py --reference-dir R clip CKPT REQUEST OUT
         The pick net's CLIP (fp32): token ids, sentence features and the prepool trunk levels of REQUEST's
         "texts" and "rgb" ((N, 3, H, W) float in [0, 1]).
 """

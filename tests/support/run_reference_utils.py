@@ -1,6 +1,6 @@
 """Run functions of the reference CLIPort's ``cliport/utils/utils.py`` on arrays from a file (test oracle).
 
-    python tests/run_reference_utils.py REFERENCE_DIR IN.npz OUT.npz
+    python tests/support/run_reference_utils.py REFERENCE_DIR IN.npz OUT.npz
 
 Both the project and the reference are packages named ``cliport``, so the reference runs in its own
 process: this script puts ``REFERENCE_DIR/stubs`` and ``REFERENCE_DIR`` first on ``sys.path`` (see
