@@ -56,6 +56,8 @@ class Recipe:
         the optimiser and how many nets train their encoder's batch norms. Steps then take ``loss=self.loss``
         (:meth:`PickPlaceAgent.train_step`)."""
         applied = agent.set_encoder_norm_training(self.encoder_norms == "train")
+        if applied:
+            _check_query_norm_statistics(self.name, agent)
         return agent.make_optimizer(eps=self.adam_eps), applied
 
     def __post_init__(self) -> None:
@@ -69,6 +71,27 @@ class Recipe:
                 raise ConfigError(f"recipe {self.name}: {field} must be one of {', '.join(allowed)}, got {value!r}")
         if not self.adam_eps > 0:
             raise ConfigError(f"recipe {self.name}: adam_eps must be > 0, got {self.adam_eps}")
+
+
+#: How much CLIP's ResNet trunk shrinks an image by its last stage (layer4).
+CLIP_TRUNK_STRIDE = 32
+
+
+def _check_query_norm_statistics(recipe: str, agent: PickPlaceAgent) -> None:
+    """A batch norm in training mode needs more than one value per channel. Training CLIP's batch norms per
+    sample, the query net normalises one sample's R crops together, and a crop that CLIP's last stage shrinks
+    to one cell leaves one value per channel when R is 1 (the reference would fail the same way)."""
+    config = agent.config
+    scale = getattr(config, "map_scale", 1.0)
+    side = int(round(config.crop_size * scale))
+    values = config.n_rotations * (side // CLIP_TRUNK_STRIDE) ** 2
+    if values < 2:
+        raise ConfigError(
+            f"recipe {recipe} trains CLIP's batch norms per sample, but the place query's {side}-pixel crop "
+            f"(crop_size {config.crop_size} x map_scale {scale}) with {config.n_rotations} rotation(s) leaves "
+            f"{values} value per channel at CLIP's last stage (stride {CLIP_TRUNK_STRIDE}); use a crop of at least "
+            f"{2 * CLIP_TRUNK_STRIDE} pixels after map_scale, 2 or more rotations, or the ravens recipe"
+        )
 
 
 def recipe_names() -> list[str]:

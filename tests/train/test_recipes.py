@@ -82,6 +82,18 @@ def test_prepare_sets_adams_epsilon_and_the_encoder_norm_mode(tiny_config) -> No
     assert get_recipe("cliport").prepare(shared)[1] == 0  # no per-net statistics: the shared trunk stays frozen
 
 
+def test_cliport_recipe_refuses_a_query_crop_clip_shrinks_to_one_value(tiny_config) -> None:
+    """The language lesson's CPU size (64-pixel crops at map_scale 0.5, one rotation) under the cliport recipe
+    failed deep inside a batch norm ("Expected more than 1 value per channel when training"): one line instead."""
+    one = tiny_config("clip_only", per_net_clip_stats=True, crop_size=64, map_scale=0.5, n_rotations=1)
+    agent = make_agent("clip_only", make_config("clip_only", one))
+    with pytest.raises(ConfigError, match="32-pixel crop .* 1 rotation.* leaves 1 value per channel .* ravens recipe"):
+        get_recipe("cliport").prepare(agent)
+    assert get_recipe("ravens").prepare(agent)[1] == 0  # CLIP stays in inference mode: nothing to refuse
+    two = make_agent("clip_only", make_config("clip_only", {**one, "n_rotations": 2}))
+    assert get_recipe("cliport").prepare(two)[1] == 3
+
+
 def test_cliport_recipe_trains_clip_batch_norms_per_sample_as_batch_1_steps(tiny_config) -> None:
     config = make_config("clip_only", tiny_config("clip_only", per_net_clip_stats=True, n_rotations=2))
     torch.manual_seed(0)
