@@ -272,10 +272,12 @@ def markdown_table(results: dict[str, Any]) -> str:
         published = "; ".join(f"{p['score']:.1f} ({p['source']})" for p in r["published"]) or "-"
         selected = fmt(r["test_at_val_selected"], r.get("test_at_val_selected_std"))
         chosen = r["val_selected_step"]
-        if isinstance(chosen, list):
+        if isinstance(chosen, list) and any(c is not None for c in chosen):
             selected += f" (steps {', '.join(str(c) for c in chosen)})"
-        elif chosen is not None:
+        elif isinstance(chosen, int):
             selected += f" (step {chosen})"
+        elif r["test_at_val_selected"] is None:
+            selected += " (no validation)"
         last, best = fmt(r["test_at_last"], r.get("test_at_last_std")), fmt(r["best_test"], r.get("best_test_std"))
         recipe = r.get("recipe") or "-"
         lines.append(f"| {r['agent']} | {recipe} | {r['n_demos']} | {selected} | {last} | {best} | {published} |")

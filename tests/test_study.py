@@ -48,6 +48,14 @@ def test_several_seeds_are_reported_as_mean_and_std(tmp_path):
     table = markdown_table(results)
     assert "over 3 training seeds" in table and "| 70.0 ± 10.0 (steps 2000, 2000, 2000) | 70.0 ± 10.0 |" in table
     plot_study(results, str(tmp_path / "plot.png"))
+    unvalidated = combine_seeds(
+        [
+            {**summarise_run("block-insertion", "transporter_only", 10, {"1000": 90.0}, {}), "seed": seed}
+            for seed in (0, 1)
+        ]
+    )
+    table = markdown_table({"task": "block-insertion", "n_steps": 1000, "seeds": [0, 1], "runs": [unvalidated]})
+    assert "| - (no validation) | 90.0 ± 0.0 |" in table and "None" not in table
     config = StudyConfig(task="block-insertion", agents=["transporter_only"], n_demos=[10], n_steps=10, out="s",
                          data_dir="d", seeds=[2, 0, 1])  # fmt: skip
     assert config.training_seeds() == [0, 1, 2]
