@@ -82,15 +82,15 @@ def _check_query_norm_statistics(recipe: str, agent: PickPlaceAgent) -> None:
     sample, the query net normalises one sample's R crops together, and a crop that CLIP's last stage shrinks
     to one cell leaves one value per channel when R is 1 (the reference would fail the same way)."""
     config = agent.config
-    scale = getattr(config, "map_scale", 1.0)
-    side = int(round(config.crop_size * scale))
+    side = int(round(config.crop_size * config.map_scale))
     values = config.n_rotations * (side // CLIP_TRUNK_STRIDE) ** 2
     if values < 2:
         raise ConfigError(
             f"recipe {recipe} trains CLIP's batch norms per sample, but the place query's {side}-pixel crop "
-            f"(crop_size {config.crop_size} x map_scale {scale}) with {config.n_rotations} rotation(s) leaves "
-            f"{values} value per channel at CLIP's last stage (stride {CLIP_TRUNK_STRIDE}); use a crop of at least "
-            f"{2 * CLIP_TRUNK_STRIDE} pixels after map_scale, 2 or more rotations, or the ravens recipe"
+            f"(crop_size {config.crop_size} x map_scale {config.map_scale}) with {config.n_rotations} "
+            f"rotation(s) leaves {values} value per channel at CLIP's last stage (stride {CLIP_TRUNK_STRIDE}); "
+            f"use a crop of at least {2 * CLIP_TRUNK_STRIDE} pixels after map_scale, 2 or more rotations, or the "
+            "ravens recipe"
         )
 
 

@@ -99,7 +99,7 @@ PLAIN_GLOBALS: dict[str, Any] = {
             "slice",
             "object",
         )
-    },  # fmt: skip
+    },
     "collections.OrderedDict": OrderedDict,
     "_codecs.encode": _latin1_encode,
 }
