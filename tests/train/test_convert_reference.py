@@ -1,5 +1,5 @@
 """A checkpoint written the way the reference CLIPort code writes them converts, and the converted run acts
-exactly as the reference agent that loaded the same file, on simulator observations.
+exactly as the reference agent whose state the file holds, on simulator observations.
 
 The reference runs in a subprocess (``tests/support/reference_oracle.py``; CLIPORT_REFERENCE_DIR or
 --reference-dir, skipped without it). Its three CLIP copies get different batch-norm statistics, as its
@@ -44,11 +44,12 @@ def test_converted_checkpoint_acts_as_the_reference_agent(
     folder = tmp_path / f"{TASK}-{reference_agent}-n100-train" / "checkpoints"
     folder.mkdir(parents=True)
     ckpt = folder / "steps=1000-val_loss=0.12345678.ckpt"
-    reference_oracle("weights", reference_agent, str(ckpt), "--perturb-clip-bn")
     request = tmp_path / "request.pt"
     torch.save({"images": [reference_image(o) for o, _ in observations], "lang": [lang for _, lang in observations]},
                request)  # fmt: skip
-    reference_oracle("act", reference_agent, str(ckpt), str(request), str(tmp_path / "act.pt"))
+    # One reference process writes the checkpoint and acts with the agent that holds its state.
+    reference_oracle("weights", reference_agent, str(ckpt), "--perturb-clip-bn", "--act", str(request),
+                     str(tmp_path / "act.pt"))  # fmt: skip
     expected = torch.load(tmp_path / "act.pt", weights_only=True)
 
     run = tmp_path / "run"
