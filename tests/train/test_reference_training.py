@@ -17,11 +17,10 @@ import math
 import numpy as np
 import pytest
 import torch
-import torch.nn.functional as F
 
 from cliport.agents import load_agent
 from cliport.env import heightmap as hm
-from cliport.models import heads, reference_names
+from cliport.models import correlation, reference_names
 from cliport.train.convert import convert_checkpoint
 from cliport.train.recipes import get_recipe
 from cliport.utils.run_dir import RunDir
@@ -68,12 +67,13 @@ def samples() -> list[dict]:
     return out
 
 
-def _conv_correlation(key: torch.Tensor, kernels: torch.Tensor) -> torch.Tensor:
-    """The place logits as the reference's Transport computes them: conv2d with padding crop / 2, resize, crop."""
-    pad = kernels.shape[-1] // 2
-    out = torch.cat([F.conv2d(key[i : i + 1], kernels[i], padding=pad) for i in range(key.shape[0])])
-    out = F.interpolate(out, size=key.shape[-2:], mode="bilinear", align_corners=False)
-    return out[..., pad:-pad, pad:-pad]
+def _longer_fft_correlation(key: torch.Tensor, kernels: torch.Tensor) -> torch.Tensor:
+    """The valid correlation with FFTs 16 cells longer on each axis: the same values, rounded differently."""
+    height, width = key.shape[-2:]
+    kh, kw = kernels.shape[-2:]
+    size = (height + 16, width + 16)
+    spectrum = torch.einsum("bchw,brchw->brhw", torch.fft.rfft2(key, s=size), torch.fft.rfft2(kernels, s=size).conj())
+    return torch.fft.irfft2(spectrum, s=size)[..., : height - kh + 1, : width - kw + 1]
 
 
 def _batch(sample: dict) -> dict:
@@ -85,6 +85,64 @@ def _batch(sample: dict) -> dict:
         "place_rot": torch.tensor([sample["bin"]]),
         "lang": [sample["lang"]],
     }
+
+
+def _twin_steps(twin, recipe, samples: list[dict], patch: pytest.MonkeyPatch) -> dict[str, torch.Tensor]:
+    """Our own float32 noise: the same steps computed another, equivalent way that rounds differently: the place
+    correlation with longer FFTs, the frozen trunk on channels_last. (The reference's own padded conv2d measured
+    the same whole-update noise, 7.9e-3 for two_stream and 5.9e-2 for clip_only, at 15-20 s more per test.)"""
+    patch.setattr(correlation, "fft_cross_correlation", _longer_fft_correlation)
+    if twin.encoder is not None:
+        trunk = twin.encoder._trunk
+        patch.setattr(twin.encoder, "_trunk", lambda rgb: trunk(rgb.contiguous(memory_format=torch.channels_last)))
+    optimizer, _ = recipe.prepare(twin)
+    for s in samples:
+        twin.train_step(_batch(s), optimizer, loss=recipe.loss)
+    return twin.trainable_state_dict()
+
+
+def _compare(
+    after: dict, before: dict, theirs: dict, trainable: set[str], noise: dict | None
+) -> tuple[list[str], list[str], float, float, int]:
+    """Errors past the bounds, tensors over their bound, the whole update's error and its noise floor, and how
+    many CLIP running statistics moved. Without ``noise`` (the twin's state) every floor is 0."""
+    errors, noisy, stats_moved = [], [], 0
+    ours_all, ref_all, twin_all = [], [], []
+    for key, value in after.items():
+        twin = value if noise is None else noise[key]
+        clip_stats = "encoder_stats" in key
+        if key in trainable or (key.endswith(("running_mean", "running_var")) and not clip_stats):
+            # A weight's update, or a U-Net batch norm's running statistic, which tracks each step's batch moments
+            # and is compared like an update (as an absolute 1e-5 it is at the mercy of float32: measured 7e-7 off
+            # the reference's for the same tensor run alone, 1.0e-5 after another agent's test in the process).
+            ours_delta, ref_delta = value - before[key], theirs[key] - before[key]
+            if key in trainable:
+                ours_all.append(ours_delta.flatten())
+                ref_all.append(ref_delta.flatten())
+                twin_all.append((twin - before[key]).flatten())
+            scale = float(ref_delta.norm())
+            error = float((ours_delta - ref_delta).norm()) / max(scale, 1e-30)
+            floor = float((twin - value).norm()) / max(scale, 1e-30)
+            bound = 1e-3
+        elif clip_stats and key.endswith(("running_mean", "running_var")):
+            # CLIP's running statistics: the issue's 1e-5, no allowance
+            stats_moved += not torch.equal(theirs[key], before[key])
+            scale = max(1.0, float(theirs[key].abs().max()))
+            error = float((value - theirs[key]).abs().max()) / scale
+            floor, bound = 0.0, 1e-5
+        else:
+            continue
+        # The bound, or, where float32 makes this computation that ill-conditioned, 10x the difference between
+        # two equivalent computations of ours (the reference's is one more such computation; a wrong loss, batch-norm
+        # mode or optimiser moves updates by O(1)).
+        if error > bound:
+            noisy.append(f"{key} {error:.1e} (ours vs ours {floor:.1e})")
+        if scale == 0 or error > max(bound, 10 * floor):
+            errors.append(f"{key}: off the reference's by {error:.2e} (of {scale:.2e}); ours vs ours {floor:.2e}")
+    ours_flat, ref_flat, twin_flat = torch.cat(ours_all), torch.cat(ref_all), torch.cat(twin_all)
+    overall = float((ours_flat - ref_flat).norm() / ref_flat.norm())
+    overall_floor = float((ours_flat - twin_flat).norm() / ref_flat.norm())
+    return errors, noisy, overall, overall_floor, stats_moved
 
 
 @pytest.mark.parametrize("reference_agent,ours", AGENTS)
@@ -118,7 +176,7 @@ def test_cliport_recipe_updates_as_the_reference_trains(
     agent.place.key_memory_format = torch.channels_last
     before = {k: v.clone() for k, v in agent.trainable_state_dict().items()}
     recipe = get_recipe("cliport")
-    twin = copy.deepcopy(agent)
+    twin = copy.deepcopy(agent)  # trained only where a tensor is over its bound, to measure our float32 noise
     optimizer, applied = recipe.prepare(agent)
     assert applied == (0 if ours == "transporter_only" else 3)
     infos = [agent.train_step(_batch(s), optimizer, loss=recipe.loss) for s in samples]
@@ -126,57 +184,16 @@ def test_cliport_recipe_updates_as_the_reference_trains(
     trainable = {name for name, p in agent.named_parameters() if p.requires_grad}
     del agent, optimizer  # one paper-size agent in training at a time: two_stream's takes ~10 GB
     gc.collect()
-    # Our own float32 noise: the same steps computed another, equivalent way that rounds differently: the place
-    # correlation as the reference computes it (a padded conv2d, not FFTs), the frozen trunk on channels_last.
-    with monkeypatch.context() as patch:
-        patch.setattr(heads, "transport_correlation", _conv_correlation)
-        if twin.encoder is not None:
-            trunk = twin.encoder._trunk
-            patch.setattr(twin.encoder, "_trunk", lambda rgb: trunk(rgb.contiguous(memory_format=torch.channels_last)))
-        twin_optimizer, _ = recipe.prepare(twin)
-        for s in samples:
-            twin.train_step(_batch(s), twin_optimizer, loss=recipe.loss)
-    noise = twin.trainable_state_dict()
-    del twin, twin_optimizer
-
     theirs = reference_names.from_reference(ours, reference["state_dict"], after)
-    errors, noisy, stats_moved = [], [], 0
-    ours_all, ref_all, twin_all = [], [], []
-    for key, value in after.items():
-        clip_stats = "encoder_stats" in key
-        if key in trainable or (key.endswith(("running_mean", "running_var")) and not clip_stats):
-            # A weight's update, or a U-Net batch norm's running statistic, which tracks each step's batch moments
-            # and is compared like an update (as an absolute 1e-5 it is at the mercy of float32: measured 7e-7 off
-            # the reference's for the same tensor run alone, 1.0e-5 after another agent's test in the process).
-            ours_delta, ref_delta = value - before[key], theirs[key] - before[key]
-            if key in trainable:
-                ours_all.append(ours_delta.flatten())
-                ref_all.append(ref_delta.flatten())
-                twin_all.append((noise[key] - before[key]).flatten())
-            scale = float(ref_delta.norm())
-            error = float((ours_delta - ref_delta).norm()) / max(scale, 1e-30)
-            floor = float((noise[key] - value).norm()) / max(scale, 1e-30)
-            bound = 1e-3
-        elif clip_stats and key.endswith(("running_mean", "running_var")):
-            # CLIP's running statistics: the issue's 1e-5, no allowance
-            stats_moved += not torch.equal(theirs[key], before[key])
-            scale = max(1.0, float(theirs[key].abs().max()))
-            error = float((value - theirs[key]).abs().max()) / scale
-            floor, bound = 0.0, 1e-5
-        else:
-            continue
-        # The bound, or, where float32 makes this computation that ill-conditioned, 10x the difference between
-        # two equivalent computations of ours (the reference's is one more such computation; a wrong loss, batch-norm
-        # mode or optimiser moves updates by O(1)).
-        if error > bound:
-            noisy.append(f"{key} {error:.1e} (ours vs ours {floor:.1e})")
-        if scale == 0 or error > max(bound, 10 * floor):
-            errors.append(f"{key}: off the reference's by {error:.2e} (of {scale:.2e}); ours vs ours {floor:.2e}")
-    ours_all, ref_all, twin_all = torch.cat(ours_all), torch.cat(ref_all), torch.cat(twin_all)
-    overall = float((ours_all - ref_all).norm() / ref_all.norm())
-    overall_floor = float((ours_all - twin_all).norm() / ref_all.norm())
-    print(f"{ours}: whole update within {overall:.2e} of the reference's (ours vs ours {overall_floor:.2e}); "
-          f"{len(noisy)} tensors over their bound, all within 10x our own float32 noise: {noisy}")  # fmt: skip
+    errors, noisy, overall, overall_floor, stats_moved = _compare(after, before, theirs, trainable, noise=None)
+    floor_note = "every tensor within its bound"
+    if errors or overall > 1e-3:  # over a bound somewhere: measure our own float32 noise there
+        with monkeypatch.context() as patch:
+            noise = _twin_steps(twin, recipe, samples, patch)
+        errors, noisy, overall, overall_floor, stats_moved = _compare(after, before, theirs, trainable, noise)
+        floor_note = f"ours vs ours {overall_floor:.2e}; {len(noisy)} tensors over their bound: {noisy}"
+    del twin
+    print(f"{ours}: whole update within {overall:.2e} of the reference's ({floor_note})")
     assert not errors, "\n".join(errors[:20])
     assert overall <= max(1e-3, 3 * overall_floor)
     if ours != "transporter_only":
