@@ -81,10 +81,10 @@ class PickPlaceAgent(nn.Module):
         trunk in bfloat16 (its features are returned as float32; the text encoder stays float32) on GPUs
         that compute bf16 natively (compute capability 8.0+; elsewhere it stays float32), and its float32
         weights come back when the setting is switched off or the agent leaves CUDA; ``fused_adam`` makes
-        :meth:`make_optimizer` use the fused Adam kernel; ``act_graphs`` replays the pick and place
+        :meth:`make_optimizer` use the fused Adam kernel (on the CPU too); ``act_graphs`` replays the pick and place
         forwards of :meth:`act_batch` as CUDA graphs (see :class:`~cliport.models.cuda_graphs.GraphedForward`:
-        batches padded to 1, 2, 4 or 8, one memory pool). On the CPU all four are off whatever is asked:
-        NCHW float32, foreach Adam, eager acting. :meth:`active_device_options` says which apply. Returns
+        batches padded to 1, 2, 4 or 8, one memory pool). On the CPU only fused Adam applies:
+        NCHW float32, eager acting. :meth:`active_device_options` says which apply. Returns
         the agent.
         """
         self.device_options.update(
@@ -132,7 +132,8 @@ class PickPlaceAgent(nn.Module):
 
     def make_optimizer(self, eps: float = 1e-8) -> torch.optim.Optimizer:
         """Adam over the trainable parameters at the configured learning rate with epsilon ``eps`` (a training
-        recipe's): the fused kernel on CUDA (see :meth:`optimize_for_device`), the foreach one elsewhere.
+        recipe's): the fused kernel on CUDA and the CPU (see :meth:`optimize_for_device`), the foreach one elsewhere
+        or when it is switched off.
         Adam is per parameter, so one optimiser over every net steps as the reference's one per net does."""
         kernel = {"fused": True} if self._use("fused_adam") else {"foreach": True}
         return torch.optim.Adam(self.trainable_parameters(), lr=self.config.lr, eps=eps, **kernel)

@@ -92,11 +92,14 @@ def test_batch_loss_is_mean_of_single_losses(name: str, tiny_config) -> None:
     assert loss.item() == pytest.approx(info["loss"])
 
 
-def test_device_options_stay_off_on_cpu(tiny_config) -> None:
+def test_device_options_but_fused_adam_stay_off_on_cpu(tiny_config) -> None:
     agent = make_agent("transporter_only", tiny_config("transporter_only")).optimize_for_device()
     assert all(agent.device_options.values())
     assert agent.pick.input_memory_format == torch.contiguous_format
     assert all(p.is_contiguous() for p in agent.parameters())
+    optimizer = agent.make_optimizer()
+    assert optimizer.defaults["fused"] and not optimizer.defaults["foreach"]
+    agent.optimize_for_device(fused_adam=False)
     optimizer = agent.make_optimizer()
     assert optimizer.defaults["foreach"] and not optimizer.defaults["fused"]
     agent.set_act_graphs(False)

@@ -106,8 +106,8 @@ def test_moments_take_the_parameters_layout(
 
 
 def test_a_run_saved_on_cuda_resumes_on_the_cpu(tmp_path, make_synthetic_dataset, monkeypatch, tiny_config) -> None:
-    """The trainer's own resume path: a last.pt as CUDA writes it (channels_last moments, fused Adam) goes on
-    training on the CPU with NCHW moments and the CPU's foreach Adam."""
+    """The trainer's own resume path: a last.pt as CUDA writes it with fused Adam switched off (channels_last
+    moments, foreach Adam) goes on training on the CPU with NCHW moments and the CPU's fused Adam."""
     make_synthetic_dataset(str(tmp_path), n_episodes=2)
     run_dir = str(tmp_path / "run")
     overrides = {
@@ -125,7 +125,7 @@ def test_a_run_saved_on_cuda_resumes_on_the_cpu(tmp_path, make_synthetic_dataset
             if moments[key].dim() == 4:
                 moments[key] = moments[key].contiguous(memory_format=torch.channels_last)
     for group in saved["param_groups"]:
-        group.update(fused=True, foreach=None)
+        group.update(fused=None, foreach=True)
     save_torch(payload, last)
 
     seen: dict[str, bool] = {}
@@ -135,9 +135,9 @@ def test_a_run_saved_on_cuda_resumes_on_the_cpu(tmp_path, make_synthetic_dataset
         params = [p for g in optimizer.param_groups for p in g["params"] if p.dim() == 4 and p.shape[-1] > 1]
         seen["strides_match"] = all(optimizer.state[p]["exp_avg"].stride() == p.stride() for p in params)
         seen["nchw"] = all(p.is_contiguous() for p in params)
-        seen["foreach"] = bool(optimizer.param_groups[0]["foreach"]) and not optimizer.param_groups[0]["fused"]
+        seen["fused"] = bool(optimizer.param_groups[0]["fused"]) and not optimizer.param_groups[0]["foreach"]
 
     monkeypatch.setattr("cliport.train.trainer.load_optimizer_state", checked)
     summary = train(TrainConfig.build({**overrides, "n_steps": 4}), resume=True, progress=False)
-    assert seen == {"strides_match": True, "nchw": True, "foreach": True}
+    assert seen == {"strides_match": True, "nchw": True, "fused": True}
     assert summary["steps"] == 4 and os.path.exists(RunDir(run_dir).checkpoint(4))
