@@ -17,6 +17,7 @@ import math
 import numpy as np
 import pytest
 import torch
+import torch.nn.functional as F
 
 from cliport.agents import load_agent
 from cliport.env import heightmap as hm
@@ -67,13 +68,15 @@ def samples() -> list[dict]:
     return out
 
 
+_fft_cross_correlation = correlation.fft_cross_correlation
+
+
 def _longer_fft_correlation(key: torch.Tensor, kernels: torch.Tensor) -> torch.Tensor:
-    """The valid correlation with FFTs 16 cells longer on each axis: the same values, rounded differently."""
+    """The project's FFT correlation of the key zero-padded by 16 cells on two sides: FFTs 16 cells longer, the
+    same valid values (the padding is never under a kernel there), rounded differently."""
     height, width = key.shape[-2:]
     kh, kw = kernels.shape[-2:]
-    size = (height + 16, width + 16)
-    spectrum = torch.einsum("bchw,brchw->brhw", torch.fft.rfft2(key, s=size), torch.fft.rfft2(kernels, s=size).conj())
-    return torch.fft.irfft2(spectrum, s=size)[..., : height - kh + 1, : width - kw + 1]
+    return _fft_cross_correlation(F.pad(key, (0, 16, 0, 16)), kernels)[..., : height - kh + 1, : width - kw + 1]
 
 
 def _batch(sample: dict) -> dict:
