@@ -68,6 +68,7 @@ def samples() -> list[dict]:
     return out
 
 
+# The twin patches correlation.fft_cross_correlation with _longer_fft_correlation, which calls the original.
 _fft_cross_correlation = correlation.fft_cross_correlation
 
 
