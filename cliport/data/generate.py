@@ -110,6 +110,7 @@ def generate(
     progress: bool = True,
 ) -> dict[str, Any]:
     """Generate ``n`` successful oracle episodes (this shard's share of them); returns the summary."""
+    global _ENV
     from cliport import tasks
 
     config = config or DemoConfig.defaults()
@@ -203,8 +204,9 @@ def generate(
     init_args = (task, mode, config.camera_scale, config.raw_images)
     try:
         if target > 0 and config.workers == 1:
-            init_worker(*init_args)
             while saved_before + n_saved < target and (seed := next_seed()) is not None:
+                if _ENV is None:  # a complete folder starts no simulator
+                    init_worker(*init_args)
                 record(_worker_run(seed, episode_path(folder, seed), meta, config.raw_images))
         elif target > 0:
             ctx = mp.get_context("spawn")
@@ -233,7 +235,6 @@ def generate(
                         record(future.result())
     finally:
         bar.close()
-        global _ENV
         if _ENV is not None:
             _ENV.close()
             _ENV = None

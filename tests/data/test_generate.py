@@ -55,6 +55,19 @@ def test_resume_regenerates_only_the_missing_episode(data_dir):
     assert not [f for f in os.listdir(folder) if ".tmp-" in f]
 
 
+def test_complete_folder_starts_no_simulator(data_dir, monkeypatch):
+    root, _ = data_dir
+    config = DemoConfig.defaults(data_dir=root, camera_scale=0.5)
+    generate("block-insertion", "train", 2, config, progress=False)
+
+    def no_simulator(*args):
+        raise AssertionError("a simulator was started for a complete folder")
+
+    monkeypatch.setattr("cliport.data.generate.init_worker", no_simulator)
+    summary = generate("block-insertion", "train", 2, config, progress=False)
+    assert summary["saved"] == 0 and summary["skipped_existing"] == 2
+
+
 def test_truncated_file_is_reported_by_name(data_dir, tmp_path):
     root, _ = data_dir
     folder = os.path.join(root, "block-insertion-train")
