@@ -27,6 +27,7 @@ from cliport.agents.loss import optimizer_step
 from cliport.env.environment import expected_renderer
 from cliport.errors import RunDirError, UserError
 from cliport.train.config import TrainConfig
+from cliport.train.dead_maps import DeadMapWatch
 from cliport.train.resume import load_optimizer_state
 from cliport.utils.device import bf16_native, resolve_device
 from cliport.utils.files import link_or_copy, load_torch, save_torch, write_json
@@ -248,6 +249,7 @@ def train(
     start, window_start, window_steps = time.perf_counter(), time.perf_counter(), 0
     sums = {"loss": 0.0, "pick_loss": 0.0, "place_loss": 0.0}
     batches = _batches(loader)
+    watch = DeadMapWatch()
     try:
         with open(run.metrics, "a", newline="") if rank == 0 else contextlib.nullcontext() as metrics_file:
             writer = csv.DictWriter(metrics_file, fieldnames=fields) if rank == 0 else None
@@ -257,6 +259,7 @@ def train(
             while step < config.n_steps:
                 info = optimizer_step(model, _next_batch(batches), optimizer, autocast)
                 step += 1
+                watch.observe(step, info)
                 window_steps += 1
                 for k in sums:
                     sums[k] += info[k]
