@@ -59,7 +59,7 @@ else
 fi
 
 if [ -n "$SMOKE" ]; then
-  S="--steps 3 --episodes 2 --swap-scenes 1 --demos 50"; SL="--steps 5 --episodes 2 --swap-scenes 1"
+  S="--steps 3 --episodes 2 --swap-scenes 1"; SL="--steps 5 --episodes 2 --swap-scenes 1"
   SS="--steps 4 --episodes 2 --swap-scenes 1"; TL=400
   TINY="--width 0.125 --map-scale 0.5"
 else

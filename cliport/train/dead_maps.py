@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from cliport.errors import UserError
 
-#: Consecutive steps with the same loss, to the last printed digit, before a map counts as dead.
+#: Consecutive steps with the same loss (within 1e-6) before a map counts as dead.
 PATIENCE = 50
 _TOLERANCE = 1e-6
 
@@ -21,7 +21,7 @@ class DeadMapError(UserError, RuntimeError):
 
 
 class DeadMapWatch:
-    """Follows the per-sample ``pick_loss`` and ``place_loss`` of each step (see :func:`observe`)."""
+    """Follows the per-sample ``pick_loss`` and ``place_loss`` of each step (see :meth:`observe`)."""
 
     def __init__(self, patience: int = PATIENCE) -> None:
         self.patience = patience
