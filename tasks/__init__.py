@@ -58,6 +58,11 @@ def place_yaw_informative(name: str) -> bool:
     return any(_REGISTRY[task].place_yaw_informative for task in resolve(name))
 
 
+def with_instruction_variants() -> list[str]:
+    """The tasks whose scenes admit other instructions, with an oracle for each (demos can record them all)."""
+    return [name for name in names() if _REGISTRY[name].offers_instruction_variants]
+
+
 def groups() -> dict[str, list[str]]:
     """All multi-task groups by name."""
     _discover()
@@ -86,4 +91,14 @@ def make(name: str, mode: str = "train") -> Task:
     return task
 
 
-__all__ = ["GoalStep", "Task", "groups", "make", "names", "register", "register_group", "resolve"]
+__all__ = [
+    "GoalStep",
+    "Task",
+    "groups",
+    "make",
+    "names",
+    "register",
+    "register_group",
+    "resolve",
+    "with_instruction_variants",
+]

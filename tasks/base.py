@@ -77,6 +77,9 @@ class Task:
     #: (round targets, zones and beads reached without turning), so its place yaw is random or always 0
     #: and one place rotation suffices (``cliport-train`` then defaults to ``--n-rotations 1``).
     place_yaw_informative: bool = True
+    #: Whether a scene admits other instructions than the one it was built with, with an oracle for each
+    #: (:meth:`instruction_variants`; demos made with ``--every-instruction`` record them).
+    offers_instruction_variants: bool = False
 
     def __init__(self, mode: str = "train"):
         if mode not in ("train", "val", "test"):
@@ -235,8 +238,13 @@ class Task:
         """
         if not self.goals:
             return None
+        return self.oracle_act_on(*self.env.oracle_heightmap())
+
+    def oracle_act_on(self, height: np.ndarray, ids: np.ndarray) -> dict[str, Any] | None:
+        """:meth:`oracle_act` given the oracle camera's height and body-id maps of the current state."""
+        if not self.goals:
+            return None
         step = self.goals[0]
-        height, ids = self.env.oracle_heightmap()
         if step.metric == "zone":  # an object wholly inside a zone is done wherever it sits
             done_objects = {i for i, b in enumerate(step.objects) if self.zone_fraction(step, b) >= 1.0}
             taken: set[int] = set()
@@ -260,6 +268,13 @@ class Task:
                 continue
             return {"pose0": pick, "pose1": self.place_pose(step, i, j, pick)}
         return None
+
+    def instruction_variants(self, obs: dict | None = None) -> list[tuple[str, dict[str, Any]]]:
+        """Every other instruction this scene admits in its current state, each with the oracle's action for it
+        (what :meth:`oracle_act` would do had the scene been built with that instruction). Empty for tasks that
+        do not offer them (``offers_instruction_variants``). Leaves the goals and the task's random state as
+        they were, so that recording variants does not change the episode."""
+        return []
 
     def sample_pick(self, body: int, height: np.ndarray, ids: np.ndarray) -> Pose | None:
         """A pick pose on a uniformly random pixel of the body's visible mask (eroded by one pixel).

@@ -9,6 +9,8 @@ a laptop (``scripts/quickstart.py --language``); put-block-in-bowl has 1-3 targe
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from cliport.env import shapes
@@ -32,6 +34,7 @@ class _PutOneBlockInBowl(Task):
     """
 
     unseen = False
+    offers_instruction_variants = True
     max_steps = 2  # one step solves it; one more, as put-block-in-bowl allows blocks + 1
     place_yaw_informative = False  # round bowls
     done_sentence = "done placing the block in the bowl."
@@ -53,19 +56,44 @@ class _PutOneBlockInBowl(Task):
             pose = self.random_pose(BLOCK)
             assert pose is not None, "three blocks always fit beside two bowls"
             self.block_colors[name] = env.add_object(shapes.box(env.client, BLOCK, pose, COLORS[name]))
-        pick, place = self.goal_block, self.goal_bowl = block_names[0], bowl_names[0]
-        self.add_goal(
-            GoalStep(
-                objects=[self.block_colors[pick]],
-                matches=np.ones((1, 1)),
-                targets=[self.bowl_colors[place]],
-                share=1.0,
-                symmetries=[0.0],
-                rotations=True,
-                tolerance=BOWL_TOLERANCE,
-                lang_goal=TEMPLATE.format(pick, place),
-            )
+        self.goal_block, self.goal_bowl = block_names[0], bowl_names[0]
+        self.add_goal(self._goal(self.goal_block, self.goal_bowl))
+
+    def _goal(self, block: str, bowl: str) -> GoalStep:
+        return GoalStep(
+            objects=[self.block_colors[block]],
+            matches=np.ones((1, 1)),
+            targets=[self.bowl_colors[bowl]],
+            share=1.0,
+            symmetries=[0.0],
+            rotations=True,
+            tolerance=BOWL_TOLERANCE,
+            lang_goal=TEMPLATE.format(block, bowl),
         )
+
+    def instruction_variants(self, obs: dict | None = None) -> list[tuple[str, dict[str, Any]]]:
+        """The other five (block, bowl) instructions of the scene, blocks in scene order then bowls, each with
+        the oracle's action from this state; every oracle call starts from the same random state."""
+        if not self.goals:
+            return []
+        goals, state = self.goals, self.rng.bit_generator.state
+        height, ids = self.env.oracle_heightmap()
+        variants = []
+        try:
+            for block in self.block_colors:
+                for bowl in self.bowl_colors:
+                    if (block, bowl) == (self.goal_block, self.goal_bowl):
+                        continue
+                    self.goals = [self._goal(block, bowl)]
+                    self.rng.bit_generator.state = state
+                    action = self.oracle_act_on(height, ids)
+                    if action is None:
+                        raise RuntimeError(f"the oracle found no action for {TEMPLATE.format(block, bowl)!r}")
+                    variants.append((TEMPLATE.format(block, bowl), action))
+        finally:
+            self.goals = goals
+            self.rng.bit_generator.state = state
+        return variants
 
     def instruction_for(self, block: str, bowl: str) -> str:
         """The instruction naming ``block`` and ``bowl`` (colours present in the scene)."""
