@@ -193,6 +193,34 @@ def make_synthetic_dataset():
     return _synthetic_dataset
 
 
+def _variant_dataset(root: str) -> str:
+    """One put-one-block-in-bowl-seen-colors episode of a blank scene whose step records two variants: pick
+    (x, 0) and place (x, 0.2) with x 0.3 for "gray", 0.4 "blue", 0.5 "green" ("put the X block in the red
+    bowl"); returns its folder."""
+    from cliport.data.episode_io import dataset_dir, episode_path, save_episode
+
+    folder = dataset_dir(root, "put-one-block-in-bowl-seen-colors", "train")
+    os.makedirs(folder)
+    obs = {"color": np.zeros((320, 160, 3), np.uint8), "height": np.zeros((320, 160), np.float32)}
+
+    def action(x: float) -> dict:
+        return {"pose0": ((x, 0.0, 0.02), (0, 0, 0, 1)), "pose1": ((x, 0.2, 0.02), (0, 0, 0, 1))}
+
+    variants = [
+        ("put the blue block in the red bowl", action(0.4)),
+        ("put the green block in the red bowl", action(0.5)),
+    ]
+    step = {"obs": obs, "action": action(0.3), "reward": 1.0, "lang_goal": "put the gray block in the red bowl"}
+    save_episode(episode_path(folder, 0), [{**step, "variants": variants}], {"task": "x", "seed": 0})
+    return folder
+
+
+@pytest.fixture(scope="session")
+def make_variant_dataset():
+    """A function (root) writing :func:`_variant_dataset`'s episode."""
+    return _variant_dataset
+
+
 #: Kinds of broken weight files every weights loader must turn into one line, and a phrase of that line.
 BAD_WEIGHT_FILES = {
     "random-bytes": "not a PyTorch state-dict file",

@@ -34,6 +34,9 @@ class DemoDataset(Dataset):
     recorded orientation and only shifts the image. ``aug_pivot`` and ``aug_interpolation`` name the
     rotation's pivot and the warp's interpolation (:data:`~cliport.data.augment.PIVOTS`,
     :data:`~cliport.data.augment.INTERPOLATIONS`; a training recipe chooses them).
+    ``every_instruction``: every instruction the episode files record for each step (the recorded one and
+    the variants of ``cliport-demos --every-instruction``) is a sample of its own, with the oracle's poses
+    for it; the image is the step's own.
     """
 
     def __init__(
@@ -48,6 +51,7 @@ class DemoDataset(Dataset):
         rotation_aug: float = math.degrees(augment_ops.ANGLE_STD),
         aug_pivot: str = "half_size",
         aug_interpolation: str = "nearest",
+        every_instruction: bool = False,
     ):
         from cliport import tasks
 
@@ -87,9 +91,19 @@ class DemoDataset(Dataset):
             elif not seeds:
                 raise DatasetError(f"{folder} holds no episodes")
             self.files += [(name, episode_path(folder, s)) for s in seeds]
-        self.index: list[tuple[int, int]] = []
+        self.index: list[tuple[int, int, int]] = []  # (episode, step, instruction)
+        self._instructions: set[str] = set()
         for e, (_, path) in enumerate(self.files):
-            self.index += [(e, t) for t in range(_episode_length(path))]
+            table = _instruction_table(path)
+            if every_instruction and any(len(row) == 1 for row in table):
+                raise DatasetError(
+                    f"{path} records one instruction per step; every_instruction needs demos made with "
+                    f"`cliport-demos --every-instruction` (the quickstart's --language makes them)"
+                )
+            for t, row in enumerate(table):
+                chosen = row if every_instruction else row[:1]
+                self.index += [(e, t, k) for k in range(len(chosen))]
+                self._instructions.update(lang for lang in chosen if lang)
         self._cache: OrderedDict[int, EpisodeData] = OrderedDict()
         self._rng: np.random.Generator | None = None
 
@@ -105,6 +119,10 @@ class DemoDataset(Dataset):
         if len(self._cache) > self.cache_episodes:
             self._cache.popitem(last=False)
         return data
+
+    def instructions(self) -> list[str]:
+        """The distinct instructions of the samples, sorted (empty strings left out)."""
+        return sorted(self._instructions)
 
     def recorded_camera_scales(self) -> dict[str, float | None]:
         """Per task, the camera_scale its first episode file records (None for files that predate it)."""
@@ -129,10 +147,11 @@ class DemoDataset(Dataset):
         return self._rng
 
     def __getitem__(self, i: int) -> dict[str, Any]:
-        e, t = self.index[i]
+        e, t, k = self.index[i]
         ep = self.episode(e)
         color, height = ep.color[t], ep.height[t]
-        pose0, pose1 = ep.pose0[t].copy(), ep.pose1[t].copy()
+        lang, pose0, pose1 = ep.instruction(t, k)
+        pose0, pose1 = pose0.copy(), pose1.copy()
         if self.augment:
             pick, place = hm.xyz_to_pix(pose0[:3]), hm.xyz_to_pix(pose1[:3])
             m = augment_ops.sample_se2(
@@ -145,16 +164,18 @@ class DemoDataset(Dataset):
             "height": np.ascontiguousarray(height, dtype=np.float32),
             "pose0": pose0,
             "pose1": pose1,
-            "lang": ep.lang_goal[t],
+            "lang": lang,
             "task": self.files[e][0],
         }
 
 
-def _episode_length(path: str) -> int:
-    """Number of steps of an episode file, read from its small arrays only (see check_episode_file)."""
-    from cliport.data.episode_io import EpisodeFileError, check_episode_file
+def _instruction_table(path: str) -> list[list[str]]:
+    """Per step of an episode file, its recorded instruction and variants, read from its small arrays only
+    (see check_episode_file)."""
+    from cliport.data.episode_io import EpisodeFileError, check_episode_file, read_instructions
 
     try:
-        return check_episode_file(path)
+        check_episode_file(path)
+        return read_instructions(path)
     except EpisodeFileError as e:
         raise DatasetError(f"{e}; re-running cliport-demos for this task and mode replaces it") from None

@@ -8,7 +8,10 @@ File ``<seed:06d>.npz`` (numpy's zip container, deflate-compressed) with, for T 
 - ``reward`` float32 (T,)              reward earned by each action
 - ``lang_goal`` str  (T,)              instruction in force when each action was chosen
 - ``meta`` str ()                      JSON: task, mode, seed, total_reward, library version, ...
-- optionally ``camera_color`` uint8 (T, 3, H, W, 3) and ``camera_depth`` float32 (T, 3, H, W).
+- optionally ``camera_color`` uint8 (T, 3, H, W, 3) and ``camera_depth`` float32 (T, 3, H, W);
+- optionally, for K other instructions of each step's scene (``cliport-demos --every-instruction``):
+  ``variant_lang`` str (T, K) and ``variant_pose0``, ``variant_pose1`` float64 (T, K, 7), the oracle's action
+  for each from the same observation.
 """
 
 from __future__ import annotations
@@ -61,9 +64,21 @@ class EpisodeData:
     reward: np.ndarray
     lang_goal: list[str]
     meta: dict[str, Any]
+    variant_lang: list[list[str]] | None = None  # (T, K) other instructions of each step's scene
+    variant_pose0: np.ndarray | None = None  # (T, K, 7) the oracle's pick pose for each
+    variant_pose1: np.ndarray | None = None  # (T, K, 7) and its place pose
 
     def __len__(self) -> int:
         return len(self.color)
+
+    def instruction(self, t: int, k: int) -> tuple[str, np.ndarray, np.ndarray]:
+        """Step ``t``'s instruction ``k`` with its pick and place poses (7,): 0 the recorded one, 1..K the
+        variants."""
+        if k == 0:
+            return self.lang_goal[t], self.pose0[t], self.pose1[t]
+        if self.variant_lang is None or self.variant_pose0 is None or self.variant_pose1 is None:
+            raise IndexError(f"instruction {k} of an episode that records no variants")
+        return self.variant_lang[t][k - 1], self.variant_pose0[t, k - 1], self.variant_pose1[t, k - 1]
 
 
 def _pose_array(poses: list) -> np.ndarray:
@@ -87,6 +102,16 @@ def save_episode(path: str, steps: list[dict[str, Any]], meta: dict[str, Any], r
         "lang_goal": np.array([s["lang_goal"] or "" for s in steps]),
         "meta": np.array(json.dumps(meta)),
     }
+    if any("variants" in s for s in steps):
+        variants = [s.get("variants", []) for s in steps]
+        counts = sorted({len(v) for v in variants})
+        if len(counts) != 1:
+            raise ValueError(f"every step must record the same number of instruction variants, got {counts}")
+        shape = (len(steps), counts[0])
+        arrays["variant_lang"] = np.array([[lang for lang, _ in v] for v in variants], dtype=str).reshape(shape)
+        for key in ("pose0", "pose1"):
+            poses = [_pose_array([action[key] for _, action in v]) for v in variants]
+            arrays[f"variant_{key}"] = np.stack(poses).reshape(*shape, 7)
     if raw_images:
         arrays["camera_color"] = np.stack([[c["color"] for c in s["obs"]["cameras"]] for s in steps])
         arrays["camera_depth"] = np.stack([[c["depth"] for c in s["obs"]["cameras"]] for s in steps])
@@ -155,6 +180,19 @@ def check_episode_file(path: str) -> int:
     return n_steps
 
 
+def read_instructions(path: str) -> list[list[str]]:
+    """Per step, the recorded instruction followed by the variants the file records (none for most files);
+    cheap: the images are not decompressed."""
+    with _open(path) as z:
+        recorded = [str(s) for s in _read(z, "lang_goal", path)]
+        if "variant_lang" not in z.files:
+            return [[lang] for lang in recorded]
+        variants = _read(z, "variant_lang", path)
+    if len(variants) != len(recorded):
+        raise EpisodeFileError(f"corrupt episode file {path}: variant arrays have different lengths")
+    return [[lang, *(str(s) for s in row)] for lang, row in zip(recorded, variants, strict=True)]
+
+
 def read_meta(path: str) -> dict[str, Any]:
     """The ``meta`` record of an episode file alone (cheap: the images are not decompressed)."""
     with _open(path) as z:
@@ -173,6 +211,12 @@ def load_episode(path: str) -> EpisodeData:
             lang_goal=[str(s) for s in _read(z, "lang_goal", path)],
             meta=_meta(z, path),
         )
+        if "variant_lang" in z.files:
+            data.variant_lang = [[str(s) for s in row] for row in _read(z, "variant_lang", path)]
+            data.variant_pose0 = _read(z, "variant_pose0", path)
+            data.variant_pose1 = _read(z, "variant_pose1", path)
+            if not (len(data.variant_lang) == len(data.variant_pose0) == len(data.variant_pose1) == len(data.reward)):
+                raise EpisodeFileError(f"corrupt episode file {path}: variant arrays have different lengths")
     if not (len(data.color) == len(data.height) == len(data.pose0) == len(data.pose1) == len(data.lang_goal)):
         raise EpisodeFileError(f"corrupt episode file {path}: arrays have different lengths")
     if len(data) == 0:

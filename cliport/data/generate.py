@@ -21,7 +21,7 @@ from typing import Any
 from tqdm import tqdm
 
 from cliport import __version__
-from cliport.data.episode_io import dataset_dir, episode_path, existing_seeds, save_episode
+from cliport.data.episode_io import dataset_dir, episode_path, existing_seeds, read_meta, save_episode
 from cliport.data.seeds import episode_seeds
 from cliport.errors import ConfigError, UserError
 from cliport.utils.config import defaults as config_defaults
@@ -39,6 +39,9 @@ class DemoConfig:
             reference; 0.5 is faster); recorded in every episode and checked against validation's.
         raw_images: also store the three raw camera images per step (~1 MB per step even compressed).
         max_failures: give up when the oracle fails on more than this many seeds in one run.
+        every_instruction: also record, for every step, the task's other instructions of that scene with the
+            oracle's action for each (tasks with ``offers_instruction_variants``; ``cliport-train
+            --every-instruction`` trains on them all).
     """
 
     data_dir: str
@@ -46,6 +49,7 @@ class DemoConfig:
     camera_scale: float
     raw_images: bool
     max_failures: int
+    every_instruction: bool = False  # a default only so that summaries of older runs load
 
     @classmethod
     def defaults(cls, **overrides: Any) -> DemoConfig:
@@ -59,11 +63,15 @@ class GenerationError(UserError, RuntimeError):
 
 # ---------------------------------------------------------------------- worker side
 _ENV = None
+_VARIANTS = False  # record every instruction of each scene (DemoConfig.every_instruction)
 
 
-def init_worker(task_name: str, mode: str, camera_scale: float, raw_images: bool = False) -> None:
+def init_worker(
+    task_name: str, mode: str, camera_scale: float, raw_images: bool = False, every_instruction: bool = False
+) -> None:
     """Give this process its environment with the task (one PyBullet client per process)."""
-    global _ENV
+    global _ENV, _VARIANTS
+    _VARIANTS = every_instruction
     from cliport import tasks
     from cliport.env.environment import EnvConfig, Environment
 
@@ -85,7 +93,7 @@ def _worker_run(seed: int, path: str, meta: dict[str, Any], raw_images: bool) ->
     from cliport.data.rollout import oracle_policy, run_episode
 
     assert _ENV is not None
-    episode = run_episode(_ENV, seed, oracle_policy(_ENV), record=True)
+    episode = run_episode(_ENV, seed, oracle_policy(_ENV), record=True, variants=_VARIANTS)
     result = {
         "seed": seed,
         "success": episode.success,
@@ -114,7 +122,11 @@ def generate(
     from cliport import tasks
 
     config = config or DemoConfig.defaults()
-    tasks.make(task, mode)  # fail fast on an unknown task or mode
+    if not tasks.make(task, mode).offers_instruction_variants and config.every_instruction:  # fails fast on a bad name
+        raise ConfigError(
+            f"{task} builds each scene for one instruction, so every_instruction has nothing to record "
+            f"(tasks that offer it: {', '.join(tasks.with_instruction_variants())})"
+        )
     index, count = shard
     if not (count >= 1 and 0 <= index < count):
         raise ConfigError(f"shard must be I/K with 0 <= I < K, got {index}/{count}")
@@ -142,6 +154,7 @@ def generate(
 
     done: set[int] = set()
     removed_bad: set[int] = set()
+    one_instruction: list[int] = []
     for seed in existing_seeds(folder):
         try:
             check_episode_file(episode_path(folder, seed))
@@ -150,8 +163,20 @@ def generate(
             os.remove(episode_path(folder, seed))
             removed_bad.add(seed)
         else:
+            if config.every_instruction and not read_meta(episode_path(folder, seed)).get("every_instruction"):
+                os.remove(episode_path(folder, seed))
+                one_instruction.append(seed)
+                continue
             done.add(seed)
+    if one_instruction:
+        logging.getLogger(__name__).warning(
+            "%d episode files in %s recorded one instruction per step: generating them again with every instruction",
+            len(one_instruction),
+            folder,
+        )
     meta = {"task": task, "mode": mode, "cliport_version": __version__, "camera_scale": config.camera_scale}
+    if config.every_instruction:
+        meta["every_instruction"] = True
 
     def seed_stream():
         i = index
@@ -201,7 +226,7 @@ def generate(
                     f"{config.max_failures}); see {failures_path}"
                 )
 
-    init_args = (task, mode, config.camera_scale, config.raw_images)
+    init_args = (task, mode, config.camera_scale, config.raw_images, config.every_instruction)
     try:
         if target > 0 and config.workers == 1:
             while saved_before + n_saved < target and (seed := next_seed()) is not None:
@@ -256,6 +281,7 @@ def generate(
         "mb_per_step": round(n_bytes / n_steps / 1e6, 4) if n_steps else None,
         "workers": config.workers,
         "camera_scale": config.camera_scale,
+        "every_instruction": config.every_instruction,
         "renderer": ",".join(sorted(renderers)) or None,
         "cliport_version": __version__,
     }

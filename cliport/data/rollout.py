@@ -40,8 +40,10 @@ def oracle_policy(env: Environment) -> Policy:
     return act
 
 
-def run_episode(env: Environment, seed: int, policy: Policy, record: bool = False) -> Episode:
-    """Reset ``env`` (its task already set) with ``seed`` and act until done or max steps."""
+def run_episode(env: Environment, seed: int, policy: Policy, record: bool = False, variants: bool = False) -> Episode:
+    """Reset ``env`` (its task already set) with ``seed`` and act until done or max steps. With ``record`` and
+    ``variants`` each recorded step also holds ``variants``: the task's other instructions of that state with
+    the oracle's action for each (:meth:`Task.instruction_variants`)."""
     task = env.task
     if task is None:
         raise ValueError("the environment has no task; call env.set_task(task) first")
@@ -54,9 +56,12 @@ def run_episode(env: Environment, seed: int, policy: Policy, record: bool = Fals
         if action is None:
             break
         lang_goal = info.get("lang_goal")
+        others = task.instruction_variants(obs) if record and variants else None
         next_obs, reward, done, info = env.step(action)
         if record:
             episode.steps.append({"obs": obs, "action": action, "reward": reward, "lang_goal": lang_goal})
+            if others is not None:
+                episode.steps[-1]["variants"] = others
         episode.total_reward += reward
         episode.n_actions += 1
         obs = next_obs

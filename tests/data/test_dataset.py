@@ -117,3 +117,21 @@ def test_rotation_aug_is_a_training_setting():
     saved = TrainConfig.build(base).to_dict()
     del saved["rotation_aug"]  # a run saved before the setting existed trained with 60
     assert TrainConfig.from_saved(saved).rotation_aug == 60.0
+
+
+def test_every_instruction_makes_each_recorded_instruction_a_sample(tmp_path, make_variant_dataset):
+    make_variant_dataset(str(tmp_path))
+    one = DemoDataset(str(tmp_path), "put-one-block-in-bowl-seen-colors", augment=False)
+    assert len(one) == 1 and one.instructions() == ["put the gray block in the red bowl"]
+    every = DemoDataset(str(tmp_path), "put-one-block-in-bowl-seen-colors", augment=False, every_instruction=True)
+    samples = {every[i]["lang"]: every[i] for i in range(len(every))}
+    assert len(every) == 3 and sorted(samples) == every.instructions()
+    for colour, x in (("gray", 0.3), ("blue", 0.4), ("green", 0.5)):
+        sample = samples[f"put the {colour} block in the red bowl"]
+        assert sample["pose0"][0] == pytest.approx(x) and sample["pose1"][:2] == pytest.approx([x, 0.2])
+
+
+def test_every_instruction_needs_demos_that_record_them(tmp_path, make_synthetic_dataset):
+    folder = make_synthetic_dataset(str(tmp_path), n_episodes=1)
+    with pytest.raises(DatasetError, match=f"{folder}.*cliport-demos --every-instruction"):
+        DemoDataset(str(tmp_path), "place-red-in-green", every_instruction=True)

@@ -62,3 +62,15 @@ def test_damage_inside_the_images_is_found_by_load_only(episode: Path) -> None:
 def test_missing_file(tmp_path: Path) -> None:
     with pytest.raises(EpisodeFileError, match="episode file not found: .*nope.npz"):
         check_episode_file(os.path.join(tmp_path, "nope.npz"))
+
+
+def test_steps_must_record_the_same_number_of_instruction_variants(tmp_path: Path) -> None:
+    from cliport.data.episode_io import save_episode
+
+    obs = {"color": np.zeros((4, 2, 3), np.uint8), "height": np.zeros((4, 2), np.float32)}
+    action = {"pose0": ((0.3, 0.0, 0.0), (0, 0, 0, 1)), "pose1": ((0.4, 0.0, 0.0), (0, 0, 0, 1))}
+    step = {"obs": obs, "action": action, "reward": 0.5, "lang_goal": "a"}
+    steps = [{**step, "variants": [("b", action)]}, step]
+    with pytest.raises(ValueError, match=r"same number of instruction variants, got \[0, 1\]"):
+        save_episode(str(tmp_path / "000000.npz"), steps, {"seed": 0})
+    assert not list(tmp_path.iterdir())

@@ -100,3 +100,36 @@ def test_rerun_regenerates_truncated_and_foreign_files(data_dir):
     assert existing_seeds(folder) == seeds
     for path, seed in zip(paths, seeds, strict=True):
         assert load_episode(path).meta["seed"] == seed
+
+
+LESSON = "put-one-block-in-bowl-seen-colors"
+
+
+def test_every_instruction_records_the_variants_and_rerecords_older_files(tmp_path):
+    root = str(tmp_path)
+    folder = os.path.join(root, f"{LESSON}-train")
+    plain = DemoConfig.defaults(data_dir=root, camera_scale=0.5)
+    generate(LESSON, "train", 2, plain, progress=False)
+    seeds = existing_seeds(folder)
+    assert load_episode(os.path.join(folder, f"{seeds[0]:06d}.npz")).variant_lang is None
+
+    every = DemoConfig.defaults(data_dir=root, camera_scale=0.5, every_instruction=True)
+    summary = generate(LESSON, "train", 2, every, progress=False)
+    assert summary["saved"] == 2 and summary["every_instruction"] is True  # both re-recorded
+    assert existing_seeds(folder) == seeds
+    for seed in seeds:
+        ep = load_episode(os.path.join(folder, f"{seed:06d}.npz"))
+        assert ep.meta["every_instruction"] is True
+        assert ep.variant_pose0.shape == ep.variant_pose1.shape == (1, 5, 7)
+        assert len({ep.lang_goal[0], *ep.variant_lang[0]}) == 6
+    assert generate(LESSON, "train", 2, every, progress=False)["skipped_existing"] == 2  # and then kept
+
+
+def test_every_instruction_on_a_task_without_variants_is_refused(capsys, one_error_line):
+    with pytest.raises(SystemExit) as exit_info:
+        demos_cli.run_cli(
+            lambda: demos_cli.main(
+                ["--task", "place-red-in-green", "--n", "1", "--every-instruction", "--data-dir", "x"]
+            )
+        )
+    one_error_line(exit_info.value.code, capsys.readouterr().err, "place-red-in-green", LESSON)
