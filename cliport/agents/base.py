@@ -19,7 +19,7 @@ from cliport.agents.config import AgentConfig
 from cliport.agents.decode import actions, decode_pick, decode_place, pose_pixels, pose_yaw
 from cliport.agents.device_options import DEVICE_OPTIONS, apply_layout_and_precision, option_applies
 from cliport.agents.loss import optimizer_step, pick_place_loss
-from cliport.errors import CheckpointError
+from cliport.errors import CheckpointError, ConfigError
 from cliport.models.cuda_graphs import GraphedForward, GraphMemory
 from cliport.models.encoders import EncoderNet, FrozenEncoder
 from cliport.models.heads import PickHead, PlaceHead
@@ -56,6 +56,14 @@ class PickPlaceAgent(nn.Module):
         self.pick = pick
         self.place = place
         self.encoder = encoder
+        self.centers_sentences = bool(getattr(config, "center_sentences", False))
+        if self.centers_sentences:
+            if encoder is None:
+                raise ConfigError(f"center_sentences needs an agent that reads instructions, not {type(self).__name__}")
+            # Fitted by fit_sentence_centering (cliport-train does, once) and saved with the weights.
+            self.register_buffer("sentence_mean", torch.zeros(encoder.sentence_dim))
+            self.register_buffer("sentence_scale", torch.zeros(()))
+        self._sentences_fitted = False  # read without a device sync (the buffers may live on a GPU)
         # Per-device speed settings, see optimize_for_device(); each applies on CUDA only.
         self.device_options = dict.fromkeys(DEVICE_OPTIONS, True)
         # One memory pool and one lock for both forwards' graphs; they hold this agent weakly.
@@ -128,7 +136,35 @@ class PickPlaceAgent(nn.Module):
         if lang is None or any(text is None for text in lang):
             raise ValueError(f"the {self.name} agent needs an instruction for every observation")
         assert self.encoder is not None
-        return self.encoder.sentence_features(list(lang))
+        features = self.encoder.sentence_features(list(lang))
+        if not self.centers_sentences:
+            return features
+        if not self._sentences_fitted:
+            raise RuntimeError(
+                "this agent centres its sentence features but they were never fitted: call "
+                "fit_sentence_centering(the training instructions) first (cliport-train does)"
+            )
+        return (features - self.sentence_mean) * self.sentence_scale
+
+    def fit_sentence_centering(self, instructions: list[str]) -> dict[str, float]:
+        """Fit the centring of ``center_sentences`` to ``instructions`` (the training set's): the mean of their
+        distinct strings' features, and the scale that keeps their RMS norm. Returns what was fitted."""
+        if not self.centers_sentences:
+            raise ValueError(f"this {self.name} agent does not centre its sentence features (center_sentences is off)")
+        assert self.encoder is not None
+        texts = sorted({text for text in instructions if text})
+        if len(texts) < 2:
+            raise ValueError(f"centring sentence features needs at least two distinct instructions, got {texts}")
+        with torch.no_grad():
+            features = self.encoder.sentence_features(texts)
+            mean = features.mean(0)
+            spread = (features - mean).pow(2).sum(1).mean().sqrt()
+            if not spread > 0:
+                raise ValueError("the instructions' sentence features are all the same: nothing to centre")
+            self.sentence_mean.copy_(mean)
+            self.sentence_scale.copy_(features.pow(2).sum(1).mean().sqrt() / spread)
+        self._sentences_fitted = True
+        return {"instructions": len(texts), "scale": float(self.sentence_scale)}
 
     def make_optimizer(self, eps: float = 1e-8) -> torch.optim.Optimizer:
         """Adam over the trainable parameters at the configured learning rate with epsilon ``eps`` (a training
@@ -264,6 +300,11 @@ class PickPlaceAgent(nn.Module):
     def _frozen_prefixes(self) -> list[str]:
         modules = self.named_modules(remove_duplicate=False)  # the shared encoder sits under several names
         return [name + "." for name, module in modules if isinstance(module, FrozenEncoder)]
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):  # type: ignore[no-untyped-def]
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+        if self.centers_sentences:
+            self._sentences_fitted = bool(self.sentence_scale > 0)
 
     def trainable_state_dict(self) -> dict[str, torch.Tensor]:
         """The state dict without any frozen encoder tensor."""

@@ -52,8 +52,22 @@ class AgentConfig:
 
 
 @dataclass
-class CLIPConfig(AgentConfig):
-    """Settings of agents with a frozen CLIP; as :class:`AgentConfig` plus
+class LanguageConfig(AgentConfig):
+    """Settings of agents that read an instruction; as :class:`AgentConfig` plus
+
+    Args:
+        center_sentences: the nets read the frozen encoder's sentence features centred on the mean of the
+            training set's distinct instructions and rescaled by their RMS norm over their centred RMS norm
+            (fitted once when training starts, saved with the weights), so that what the instructions share
+            does not drown what tells them apart. Not the reference's: it reads the raw features.
+    """
+
+    center_sentences: bool
+
+
+@dataclass
+class CLIPConfig(LanguageConfig):
+    """Settings of agents with a frozen CLIP; as :class:`LanguageConfig` plus
 
     Args:
         clip_weights: "openai" (the published weights: Hugging Face cache, else download), another of the

@@ -6,15 +6,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from cliport.agents import register_agent
-from cliport.agents.config import AgentConfig
+from cliport.agents.config import LanguageConfig
 from cliport.agents.two_stream import TwoStreamAgent
 from cliport.models.encoders import FrozenEncoder
 from cliport.models.rn50_bert_encoder import load_rn50_bert
 
 
 @dataclass
-class RN50BERTConfig(AgentConfig):
-    """Settings of the RN50-BERT agent; as :class:`AgentConfig` plus
+class RN50BERTConfig(LanguageConfig):
+    """Settings of the RN50-BERT agent; as :class:`LanguageConfig` plus
 
     Args:
         rn50_weights: "imagenet" (torchvision's ImageNet weights: torch's hub cache, else download), a local
