@@ -49,6 +49,9 @@ class TrainConfig:
             bilinear augmentation about (W/2, H/2)), ravens (Transporter Networks' code: the per-sample
             cross-entropy, Adam eps 1e-7, nearest-neighbour augmentation about (W/2, H/2)) or legacy (this
             project before 0.3). A run keeps its recipe when resumed.
+        every_instruction: train on every instruction the demos record for each step (``cliport-demos
+            --every-instruction``), each with the oracle's action for it, not only the one each scene was built
+            with: the same image under other sentences and other answers. Not the reference's.
         agent_config: the agent's own settings (its config class; defaults in configs/<agent>.toml).
         env: workcell settings of the validation episodes (defaults in configs/env.toml).
     """
@@ -77,6 +80,7 @@ class TrainConfig:
     val_mode: str = "auto"
     # Runs saved before recipes existed trained with what configs/recipes.toml calls legacy.
     recipe: str = "legacy"
+    every_instruction: bool = False
 
     @classmethod
     def build(cls, overrides: Mapping[str, Any] | None = None, base: Mapping[str, Any] | None = None) -> TrainConfig:

@@ -188,8 +188,17 @@ def train(
         rotation_aug=config.rotation_aug,
         aug_pivot=recipe.aug_pivot,
         aug_interpolation=recipe.aug_interpolation,
+        every_instruction=config.every_instruction,
     )
     _check_demo_rendering(dataset, config)
+    if agent.centers_sentences:
+        fitted = agent.fit_sentence_centering(dataset.instructions())
+        if rank == 0:
+            print(
+                f"sentence features centred on the training set's {fitted['instructions']} instructions "
+                f"(scale {fitted['scale']:.2f})",
+                file=sys.stderr,
+            )
 
     step = 0
     if resume and os.path.exists(last_path):
