@@ -1,6 +1,6 @@
 #!/bin/bash
 # One short GPU session (a lent machine holds ~15 minutes in all): the language lesson at its CUDA settings
-# over three training seeds, a longer seed-0 run, the CPU settings given four times the CPU's steps, and
+# over three training seeds, the CPU settings given twice the CPU's steps over two seeds, and
 # tests/agents/test_cuda_speed.py, side by side on one GPU. PyBullet is built there from a trimmed sdist
 # (~65-85 s on 16 cores) while training runs: the demos are carried, and a complete demo folder needs no
 # simulator; a job that reached evaluation before PyBullet was ready is rerun once (the quickstart resumes).
@@ -17,8 +17,9 @@
 #   (cd /tmp && tar xzf pybullet-3.2.7.tar.gz && cd pybullet-3.2.7 && rm -rf examples/pybullet/gym/pybullet_envs \
 #     && find examples/pybullet/gym/pybullet_data -mindepth 1 ! -name __init__.py -delete \
 #     && cd .. && tar czf "$OLDPWD/.whl/pybullet-3.2.7-trim.tar.gz" pybullet-3.2.7)
-#   the lesson's 50 demos, full-size and half-size cameras, into .gpu/full/data and .gpu/half/data (what
-#   `python scripts/quickstart.py --language --camera-scale S --steps 0 --out DIR` leaves in DIR/data)
+#   the lesson's 50 demos, full-size and half-size cameras, into .gpu/full/data and .gpu/half/data (what the
+#   quickstart's --language would make: `cliport-demos --task put-one-block-in-bowl-seen-colors --n 50
+#   --every-instruction --camera-scale S --data-dir .gpu/{full,half}/data` for S = 1.0 and 0.5)
 # then run `bash scripts/gpu_session.sh` through the device tool with `.whl` and `.gpu` carried.
 export PYTHONUNBUFFERED=1 OMP_NUM_THREADS=2
 cd "$(dirname "$0")/.."
@@ -59,11 +60,10 @@ else
 fi
 
 if [ -n "$SMOKE" ]; then
-  S="--steps 3 --episodes 2 --swap-scenes 1"; SL="--steps 5 --episodes 2 --swap-scenes 1"
-  SS="--steps 4 --episodes 2 --swap-scenes 1"; TL=400
+  S="--steps 3 --episodes 2 --swap-scenes 1"; SS="--steps 4 --episodes 2 --swap-scenes 1"; TL=400
   TINY="--width 0.125 --map-scale 0.5"
 else
-  S=""; SL="--steps 1500"; SS="--steps 4800"; TL=$(( 470 - $(el) )); TINY=""
+  S=""; SS="--steps 2400"; TL=$(( 470 - $(el) )); TINY=""
 fi
 # job NAME DEMOS ARGS...: the quickstart on carried demos; rerun once (it resumes) if it failed before PyBullet was ready.
 job() {
@@ -85,8 +85,8 @@ echo "[$(el)s] jobs start, limit ${TL}s"
 job cuda0 full --seed 0 $TINY $S
 job cuda1 full --seed 1 $TINY $S
 job cuda2 full --seed 2 $TINY $S
-job cuda0long full --seed 0 $TINY $SL
 job cpuset0 half --seed 0 --width 0.125 --map-scale 0.5 --camera-scale 0.5 $SS
+job cpuset1 half --seed 1 --width 0.125 --map-scale 0.5 --camera-scale 0.5 $SS
 if [ -z "$SMOKE" ]; then
   (while [ ! -e $PB_DONE ]; do sleep 2; done
    timeout $(( TL - $(el) )) $py -m pytest -q -p no:cacheprovider tests/agents/test_cuda_speed.py -o addopts="" \
@@ -96,12 +96,12 @@ wait
 echo "[$(el)s] jobs done"
 tail -n 3 "$L/pybullet_build.log" 2>/dev/null
 tail -n 30 "$L/cuda_tests.log" 2>/dev/null
-for name in cuda0 cuda1 cuda2 cuda0long cpuset0; do
+for name in cuda0 cuda1 cuda2 cpuset0 cpuset1; do
   echo "== $name"; tr '\r' '\n' <"$L/$name.log" | grep -v "it/s\]$\|s/it\]$\|demo/s\]$\|ep/s\]$\|s/ep\]$" | tail -n 8
   $py -c "import json,sys; r=json.load(open(sys.argv[1])); print(json.dumps({k: r.get(k) for k in ('device','solved','instruction_following','seconds','training')})[:900])" \
     /tmp/$name/results.json 2>/dev/null | sed 's/"swaps": \[[^]]*\]//'
 done
 tar czf "$OUT/results.tgz" --exclude='*.safetensors' --exclude='*.pt' --exclude='checkpoints' --exclude=data \
-  --exclude="*.npz" --exclude='tensorboard' $L /tmp/cuda0 /tmp/cuda1 /tmp/cuda2 /tmp/cuda0long /tmp/cpuset0 2>/dev/null
+  --exclude="*.npz" --exclude='tensorboard' $L /tmp/cuda0 /tmp/cuda1 /tmp/cuda2 /tmp/cpuset0 /tmp/cpuset1 2>/dev/null
 ls -la "$OUT"
 echo "[$(el)s] end"

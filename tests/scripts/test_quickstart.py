@@ -57,6 +57,8 @@ def test_the_language_lesson_measures_instruction_following_and_draws_two_instru
     summary = json.loads((tmp_path / "results.json").read_text())
     assert summary["agent"] == "two_stream" and summary["task"] == "put-one-block-in-bowl-seen-colors"
     assert summary["training"]["clip_weights"] == "random" and summary["training"]["map_scale"] == 0.5
+    assert summary["training"]["every_instruction"] and summary["training"]["center_sentences"]
+    assert "every instruction of each scene" in out.stdout and "centred sentence features" in out.stdout
     following = summary["instruction_following"]
     assert following["n"] == 2 and following["rate"] == following["followed"] / 2  # two other blocks per scene
     figure = summary["two_instructions"]
