@@ -172,10 +172,9 @@ class DemoDataset(Dataset):
 def _instruction_table(path: str) -> list[list[str]]:
     """Per step of an episode file, its recorded instruction and variants, read from its small arrays only
     (see check_episode_file)."""
-    from cliport.data.episode_io import EpisodeFileError, check_episode_file, read_instructions
+    from cliport.data.episode_io import EpisodeFileError, read_instructions
 
     try:
-        check_episode_file(path)
         return read_instructions(path)
     except EpisodeFileError as e:
         raise DatasetError(f"{e}; re-running cliport-demos for this task and mode replaces it") from None

@@ -173,17 +173,23 @@ def check_episode_file(path: str) -> int:
     found by :func:`load_episode`.
     """
     with _open(path) as z:
-        n_steps = len(_read(z, "reward", path))
-        _meta(z, path)
+        return _checked_steps(z, path)
+
+
+def _checked_steps(z: np.lib.npyio.NpzFile, path: str) -> int:
+    """The cheap checks of :func:`check_episode_file` on an open archive; its number of steps."""
+    n_steps = len(_read(z, "reward", path))
+    _meta(z, path)
     if n_steps == 0:
         raise EpisodeFileError(f"corrupt episode file {path}: no steps")
     return n_steps
 
 
 def read_instructions(path: str) -> list[list[str]]:
-    """Per step, the recorded instruction followed by the variants the file records (none for most files);
-    cheap: the images are not decompressed."""
+    """Per step, the recorded instruction followed by the variants the file records (none for most files),
+    after the checks of :func:`check_episode_file`; cheap: the images are not decompressed."""
     with _open(path) as z:
+        _checked_steps(z, path)
         recorded = [str(s) for s in _read(z, "lang_goal", path)]
         if "variant_lang" not in z.files:
             return [[lang] for lang in recorded]

@@ -49,7 +49,7 @@ class DemoConfig:
     camera_scale: float
     raw_images: bool
     max_failures: int
-    every_instruction: bool = False  # a default only so that summaries of older runs load
+    every_instruction: bool
 
     @classmethod
     def defaults(cls, **overrides: Any) -> DemoConfig:
