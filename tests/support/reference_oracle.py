@@ -27,7 +27,9 @@ strings and numbers only.
         over REQUEST's frames ({"frames": [{"img": (H, W, 6) float32, "p0": (2,), "p1": (2,) int pixels,
         "p1_theta": float, "lang": str}]}): ``attention.train(); transport.train(); attn_training_step(frame);
         transport_training_step(frame)``, what its ``training_step`` runs minus Lightning's bookkeeping.
-        TRAINED_OUT gets {"state_dict": the agent's state after the steps, "losses": [(pick, place), ...]}.
+        TRAINED_OUT gets {"state_dict": the agent's state after the steps, "losses": [(pick, place), ...],
+        "first_grads": {parameter name: the gradient its optimiser stepped with first (the first frame's)},
+        "optimizers": {"attn" / "trans": the optimiser's settings (lr, betas, eps, ...)}}.
         ``--n-rotations`` builds the agents with another rotation count than the reference's 36.
     python tests/support/reference_oracle.py --reference-dir R clip CKPT REQUEST OUT
         The pick net's CLIP (fp32): token ids, sentence features and the prepool trunk levels of REQUEST's
@@ -156,6 +158,23 @@ def cmd_train(ref: types.ModuleType, args: argparse.Namespace) -> None:
         clip.float()
     frames = torch.load(args.request, weights_only=True)["frames"]
     losses = []
+    # The gradients each optimiser steps with on its first call (the first frame's, before any update), read by
+    # a step pre-hook: the released training steps are run as they are.
+    names = {id(p): name for name, p in agent.named_parameters()}
+    first_grads: dict[str, Any] = {}
+
+    def record(optimizer: Any, *_: Any) -> None:
+        params = [p for group in optimizer.param_groups for p in group["params"] if p.grad is not None]
+        if not any(names[id(p)] in first_grads for p in params):
+            first_grads.update({names[id(p)]: p.grad.detach().clone() for p in params})
+
+    optimizers = agent._optimizers
+    for optimizer in optimizers.values():
+        optimizer.register_step_pre_hook(record)
+    settings = {
+        key: {k: v for k, v in opt.defaults.items() if isinstance(v, (bool, int, float, tuple)) or v is None}
+        for key, opt in optimizers.items()
+    }
     for _ in range(args.steps):
         for frame in frames:
             sample = {
@@ -172,7 +191,9 @@ def cmd_train(ref: types.ModuleType, args: argparse.Namespace) -> None:
             place_loss, _ = agent.transport_training_step(sample)
             losses.append((float(pick_loss), float(place_loss)))
     state = {k: v.detach().clone() for k, v in agent.state_dict().items()}
-    torch.save({"state_dict": state, "losses": losses}, args.trained_out)
+    torch.save(
+        {"state_dict": state, "losses": losses, "first_grads": first_grads, "optimizers": settings}, args.trained_out
+    )
 
 
 def _build_loaded(ref: types.ModuleType, agent_name: str, ckpt_path: str, clip_fp16: bool) -> Any:
