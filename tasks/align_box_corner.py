@@ -8,10 +8,10 @@ import numpy as np
 
 from cliport.env import shapes
 from cliport.env.transforms import at_height, multiply, yaw_to_quat
-from cliport.tasks import register
 from cliport.tasks.base import GoalStep, Task
 from cliport.tasks.blocks_assets import corner_marker_parts
 from cliport.tasks.colors import COLORS
+from cliport.tasks.registry import register
 
 
 @register("align-box-corner")

@@ -14,10 +14,10 @@ import numpy as np
 
 from cliport.env import shapes
 from cliport.env.transforms import Pose, multiply, yaw_to_quat
-from cliport.tasks import register
 from cliport.tasks.base import GoalStep
 from cliport.tasks.colors import split_colors
 from cliport.tasks.kit_shapes import HEIGHT, SHAPES, ShapeTask, placed_pieces, prism_mesh, split_shapes
+from cliport.tasks.registry import register
 
 KIT_SIZE = (0.28, 0.2, 0.005)
 KIT_COLOR = (0.85, 0.82, 0.75)

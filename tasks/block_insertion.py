@@ -8,10 +8,10 @@ import numpy as np
 
 from cliport.env import shapes
 from cliport.env.transforms import at_height
-from cliport.tasks import register
 from cliport.tasks.base import GoalStep, Task
 from cliport.tasks.blocks_assets import ELL_HEIGHT, ELL_SIZE, FIXTURE_SIZE, ell_polygon, fixture_parts
 from cliport.tasks.colors import COLORS
+from cliport.tasks.registry import register
 
 
 @register("block-insertion")

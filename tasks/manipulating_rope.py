@@ -16,9 +16,9 @@ import numpy as np
 
 from cliport.env.primitives import PickPlaceSettings
 from cliport.env.transforms import Pose, apply, at_height
-from cliport.tasks import register
 from cliport.tasks.base import GoalStep, Task
 from cliport.tasks.colors import COLORS
+from cliport.tasks.registry import register
 from cliport.tasks.rope_assets import BEAD_RADIUS, N_BEADS, SIDE_LENGTH, make_rope, rope_path
 from cliport.tasks.sweeping_piles import square_outline
 

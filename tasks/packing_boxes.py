@@ -12,10 +12,10 @@ import numpy as np
 
 from cliport.env import shapes
 from cliport.env.transforms import at_height, multiply
-from cliport.tasks import register
 from cliport.tasks.base import GoalStep
 from cliport.tasks.colors import COLORS, split_colors
 from cliport.tasks.packing_assets import FLOOR_THICKNESS, ZoneOracleMixin, container, kd_split
+from cliport.tasks.registry import register
 
 MIN_SIDE = 0.05  # smallest box side before the clearance
 CLEARANCE = 0.006  # each box is this much smaller than its cell along x and y

@@ -16,10 +16,10 @@ from __future__ import annotations
 import numpy as np
 
 from cliport.env.transforms import at_height, multiply
-from cliport.tasks import register
 from cliport.tasks.base import GoalStep
 from cliport.tasks.packing_assets import FLOOR_THICKNESS, ZoneOracleMixin, container, kd_split
 from cliport.tasks.packing_object_set import ObjectSpec, build_object, centred_parts, object_set, split_objects
+from cliport.tasks.registry import register
 
 CELL_MIN_SIDE = 0.085  # every object's footprint diagonal is below this
 WALL_HEIGHT = 0.03

@@ -6,10 +6,10 @@ import numpy as np
 
 from cliport.env import shapes
 from cliport.env.transforms import at_height
-from cliport.tasks import register
 from cliport.tasks.base import GoalStep
 from cliport.tasks.colors import COLORS, split_colors
 from cliport.tasks.kit_shapes import SHAPES, ShapeTask, split_shapes
+from cliport.tasks.registry import register
 
 N_OBJECTS = 5
 WALL_HEIGHT = 0.05

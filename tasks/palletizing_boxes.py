@@ -19,9 +19,9 @@ import numpy as np
 from cliport.env import shapes
 from cliport.env.bullet import p
 from cliport.env.transforms import multiply, yaw_to_quat
-from cliport.tasks import register
 from cliport.tasks.base import GoalStep
 from cliport.tasks.packing_assets import PALLET_HEIGHT, PALLET_SIZE, ZoneOracleMixin, pallet
+from cliport.tasks.registry import register
 
 STACK = 0.19  # side of the cubic stack (m)
 MARGIN = 0.01  # gap between neighbouring boxes

@@ -15,10 +15,10 @@ import numpy as np
 
 from cliport.env import shapes
 from cliport.env.transforms import at_height
-from cliport.tasks import register
 from cliport.tasks.base import GoalStep, Task
 from cliport.tasks.blocks_assets import BLOCK, BOWL, BOWL_TOLERANCE
 from cliport.tasks.colors import COLORS, split_colors
+from cliport.tasks.registry import register
 
 N_BLOCKS = 3
 N_BOWLS = 2

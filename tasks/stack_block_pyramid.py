@@ -8,7 +8,6 @@ import numpy as np
 
 from cliport.env import shapes
 from cliport.env.transforms import Pose, at_height, multiply
-from cliport.tasks import register
 from cliport.tasks.base import GoalStep, Task
 from cliport.tasks.blocks_assets import (
     BLOCK,
@@ -18,6 +17,7 @@ from cliport.tasks.blocks_assets import (
     pyramid_targets,
 )
 from cliport.tasks.colors import COLORS, split_colors
+from cliport.tasks.registry import register
 
 BLOCK_SYMMETRY = math.pi / 2
 

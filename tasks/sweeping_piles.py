@@ -15,9 +15,9 @@ from cliport.env import shapes
 from cliport.env.bullet import p
 from cliport.env.primitives import PushSettings
 from cliport.env.transforms import Pose, apply, at_height, invert, yaw_to_quat
-from cliport.tasks import register
 from cliport.tasks.base import GoalStep, Task
 from cliport.tasks.colors import COLORS, split_colors
+from cliport.tasks.registry import register
 
 CUBE = (0.01, 0.01, 0.01)
 CUBE_MASS = 0.01

@@ -6,7 +6,6 @@ import numpy as np
 
 from cliport.env import shapes
 from cliport.env.transforms import at_height, multiply
-from cliport.tasks import register
 from cliport.tasks.base import GoalStep, Task
 from cliport.tasks.blocks_assets import (
     BROWN_SHADES,
@@ -18,6 +17,7 @@ from cliport.tasks.blocks_assets import (
     stand_parts,
 )
 from cliport.tasks.colors import COLORS, split_colors
+from cliport.tasks.registry import register
 
 RING_MASS = 0.05
 ROD_NAMES = ("lighter brown side", "middle of the stand", "darker brown side")

@@ -19,6 +19,7 @@ from cliport.agents.config import AgentConfig
 from cliport.agents.decode import actions, decode_pick, decode_place, pose_pixels, pose_yaw
 from cliport.agents.device_options import DEVICE_OPTIONS, apply_layout_and_precision, option_applies
 from cliport.agents.loss import optimizer_step, pick_place_loss
+from cliport.agents.registry import agent_class, agent_from_payload
 from cliport.errors import CheckpointError, ConfigError
 from cliport.models.cuda_graphs import GraphedForward, GraphMemory
 from cliport.models.encoders import EncoderNet, FrozenEncoder
@@ -379,8 +380,6 @@ class PickPlaceAgent(nn.Module):
         sources unless ``weights`` maps a source field to another (as :func:`cliport.agents.load_agent`).
         Called on an agent class (``TwoStreamAgent.from_pretrained``), the weights must be of that agent.
         """
-        from cliport.agents import agent_class, agent_from_payload
-
         path = pretrained_file(str(source), checkpoint)
         payload = read_payload(path)
         if not issubclass(agent_class(payload["agent"]), cls):  # before any pretrained part is loaded

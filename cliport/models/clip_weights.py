@@ -31,6 +31,7 @@ from cliport.errors import UserError
 from cliport.models import weights
 from cliport.models.clip_registry import MODEL_NAME, check_model_name, model_config, pretrained_tags, quiet_open_clip
 from cliport.models.clip_tokenizer import TokenizerUnavailable
+from cliport.utils import hub
 
 RANDOM_SEED = 0
 
@@ -91,7 +92,7 @@ def _hf_filenames(model_name: str, tag: str) -> list[str]:
 
 def _hub_reachable(timeout_s: float = 3.0) -> bool:
     """Whether the Hugging Face hub answers a TCP connection within `timeout_s` seconds (False if HF_HUB_OFFLINE)."""
-    return weights.hf_hub_reachable(timeout_s)
+    return hub.hf_hub_reachable(timeout_s)
 
 
 def _cached_pretrained_file(model_name: str, tag: str) -> str | None:

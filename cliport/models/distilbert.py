@@ -35,6 +35,7 @@ from torch import nn
 
 from cliport.errors import UserError
 from cliport.models import weights
+from cliport.utils import hub
 
 RANDOM_SEED = 0
 DEFAULT_BERT = "distilbert-base-uncased"
@@ -105,7 +106,7 @@ def _bad_bert_folder(path: Path, reason: str) -> BERTWeightsUnavailable:
 
 def _hub_reachable(timeout_s: float = 3.0) -> bool:
     """Whether the Hugging Face hub answers within `timeout_s` seconds (False when HF_HUB_OFFLINE is set)."""
-    return weights.hf_hub_reachable(timeout_s)
+    return hub.hf_hub_reachable(timeout_s)
 
 
 def _hf_cache_dir() -> str:
@@ -247,7 +248,7 @@ def build_distilbert(source: str) -> tuple[nn.Module, Any]:
         return _load_bert_folder(cached, cached)
     if not _hub_reachable():
         reason = "it is not a local folder, not in the Hugging Face cache, and the hub is unreachable"
-        if weights.hf_hub_offline():
+        if hub.hf_hub_offline():
             reason += " (HF_HUB_OFFLINE is set)"
         raise BERTWeightsUnavailable(_bert_offline_help(source, reason + "."))
     try:

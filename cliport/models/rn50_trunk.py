@@ -34,6 +34,7 @@ from torch import nn
 
 from cliport.errors import UserError
 from cliport.models import weights
+from cliport.utils import hub
 
 RANDOM_SEED = 0
 _TORCHVISION_HOST = ("download.pytorch.org", 443)
@@ -91,7 +92,7 @@ def imagenet_cache_file() -> Path:
 
 def _download_reachable(timeout_s: float = 3.0) -> bool:
     """Whether download.pytorch.org answers a TCP connection within `timeout_s` seconds."""
-    return weights.host_reachable(*_TORCHVISION_HOST, timeout_s=timeout_s)
+    return hub.host_reachable(*_TORCHVISION_HOST, timeout_s=timeout_s)
 
 
 def _rn50_offline_help(source: str, reason: str) -> str:
