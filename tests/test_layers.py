@@ -27,15 +27,16 @@ LAYERS: dict[str, tuple[str, ...]] = {
     "cliport.utils": ("cliport.errors", "cliport.configs"),
     "cliport.env": ("cliport.errors", "cliport.utils"),  # the simulator
     "cliport.tasks": ("cliport.errors", "cliport.env"),  # tasks/: the Ravens tasks and their oracles
-    "cliport.models": ("cliport.errors", "cliport.utils"),  # nets, heads and the frozen encoders
+    "cliport.models.encoders": ("cliport.errors", "cliport.utils"),  # frozen pretrained encoders, their weights
+    "cliport.models": ("cliport.errors", "cliport.utils", "cliport.models.encoders"),  # nets and heads
     "cliport.data": ("cliport", "cliport.errors", "cliport.utils", "cliport.env", "cliport.tasks"),
     "cliport.gym_env": ("cliport.errors", "cliport.env", "cliport.tasks", "cliport.data"),
     "cliport.agents": (
-        "cliport", "cliport.errors", "cliport.utils", "cliport.env", "cliport.models",
+        "cliport", "cliport.errors", "cliport.utils", "cliport.env", "cliport.models.encoders", "cliport.models",
     ),
     "cliport.train": (
-        "cliport", "cliport.errors", "cliport.utils", "cliport.env", "cliport.tasks", "cliport.models",
-        "cliport.data", "cliport.agents",
+        "cliport", "cliport.errors", "cliport.utils", "cliport.env", "cliport.tasks", "cliport.models.encoders",
+        "cliport.models", "cliport.data", "cliport.agents",
     ),
     "cliport.evaluation": (
         "cliport", "cliport.errors", "cliport.reference", "cliport.utils", "cliport.env", "cliport.tasks",

@@ -22,7 +22,8 @@ from cliport.agents.loss import optimizer_step, pick_place_loss
 from cliport.agents.registry import agent_class, agent_from_payload
 from cliport.errors import CheckpointError, ConfigError
 from cliport.models.cuda_graphs import GraphedForward, GraphMemory
-from cliport.models.encoders import EncoderNet, FrozenEncoder
+from cliport.models.encoder_net import EncoderNet
+from cliport.models.encoders.base import FrozenEncoder
 from cliport.models.heads import PickHead, PlaceHead
 from cliport.models.preprocess import raw_input
 from cliport.utils.files import save_torch

@@ -18,7 +18,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from cliport.models.encoders import FrozenEncoder
+from cliport.models.encoders.base import FrozenEncoder
 from cliport.utils.device import bf16_native
 
 DEVICE_OPTIONS = ("channels_last", "bf16_clip", "fused_adam", "act_graphs")

@@ -8,8 +8,8 @@ from dataclasses import dataclass
 from cliport.agents.config import LanguageConfig
 from cliport.agents.registry import register_agent
 from cliport.agents.two_stream import TwoStreamAgent
-from cliport.models.encoders import FrozenEncoder
-from cliport.models.rn50_bert_encoder import load_rn50_bert
+from cliport.models.encoders.base import FrozenEncoder
+from cliport.models.encoders.rn50_bert_encoder import load_rn50_bert
 
 
 @dataclass

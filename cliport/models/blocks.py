@@ -3,7 +3,7 @@
 Residual bottlenecks without batch norm or conv biases (the reference trains with ``batchnorm: False``),
 bilinear x2 up-sampling with ``align_corners=True`` (``nn.UpsamplingBilinear2d``), the U-Net up-block
 with its batch norms, and the per-sample batch norm those batch norms need (see
-:class:`PerSampleBatchNorm2d`).
+:class:`PerSampleBatchNorm2d`). The stream fusions are :mod:`cliport.models.fusion`'s.
 """
 
 from __future__ import annotations
@@ -186,39 +186,6 @@ class UpBlock(nn.Module):
         if dh or dw:
             x = F.pad(x, [dw // 2, dw - dw // 2, dh // 2, dh - dh // 2])
         return self.conv(torch.cat([skip, x], dim=1))
-
-
-class LateralFusion(nn.Module):
-    """concat(semantic, spatial lateral) -> ReLU -> 1x1 conv (no bias) to ``out_ch`` channels: the reference's
-    ``FusionConvLat``."""
-
-    def __init__(self, in_ch: int, out_ch: int) -> None:
-        super().__init__()
-        self.conv = nn.Conv2d(in_ch, out_ch, 1, bias=False)
-
-    def forward(self, x: torch.Tensor, lateral: torch.Tensor) -> torch.Tensor:
-        """(N, c, H, W), (N, in_ch - c, H, W) -> (N, out_ch, H, W)."""
-        return self.conv(F.relu(torch.cat([x, lateral], dim=1)))
-
-
-class AddFusion(nn.Module):
-    """The two streams' outputs summed: the reference's ``FusionAdd`` (fusion type "add", its pick nets)."""
-
-    def forward(self, spatial: torch.Tensor, semantic: torch.Tensor) -> torch.Tensor:
-        """(N, C, H, W), (N, C, H, W) -> (N, C, H, W)."""
-        return spatial + semantic
-
-
-class ConvFusion(nn.Conv2d):
-    """concat(spatial, semantic) -> ReLU -> 1x1 conv (no bias) from ``2 * ch`` to ``ch`` channels: the reference's
-    ``FusionConv`` (fusion type "conv", its key and query nets). A ``Conv2d`` itself, so its weight is ``weight``."""
-
-    def __init__(self, ch: int) -> None:
-        super().__init__(2 * ch, ch, 1, bias=False)
-
-    def forward(self, spatial: torch.Tensor, semantic: torch.Tensor) -> torch.Tensor:  # type: ignore[override]
-        """(N, ch, H, W), (N, ch, H, W) -> (N, ch, H, W)."""
-        return super().forward(F.relu(torch.cat([spatial, semantic], dim=1)))
 
 
 def scaled(width: int, multiplier: float) -> int:

@@ -23,7 +23,7 @@ from torch import nn
 from cliport.models import rotation
 from cliport.models.blocks import PerSampleBatchNorm2d
 from cliport.models.correlation import transport_correlation
-from cliport.models.encoders import EncoderNet
+from cliport.models.encoder_net import EncoderNet
 
 #: Output channels of the place head's key and query nets (the reference's transport ``output_dim``).
 PLACE_FEATURES = 3

@@ -22,7 +22,7 @@ REFERENCE_AGENTS: dict[str, tuple[str, ...]] = {
 
 
 #: Our prefix (within a net) of its own CLIP batch-norm statistics (``per_net_clip_stats``:
-#: :class:`~cliport.models.encoders.PerNetClipStats`, saved under the net's ``encoder_stats``).
+#: :class:`~cliport.models.encoder_net.PerNetClipStats`, saved under the net's ``encoder_stats``).
 PER_NET_CLIP_STATS = "encoder_stats."
 
 

@@ -28,9 +28,15 @@ import torch
 from torch import nn
 
 from cliport.errors import UserError
-from cliport.models import weights
-from cliport.models.clip_registry import MODEL_NAME, check_model_name, model_config, pretrained_tags, quiet_open_clip
-from cliport.models.clip_tokenizer import TokenizerUnavailable
+from cliport.models.encoders import weights
+from cliport.models.encoders.clip_registry import (
+    MODEL_NAME,
+    check_model_name,
+    model_config,
+    pretrained_tags,
+    quiet_open_clip,
+)
+from cliport.models.encoders.clip_tokenizer import TokenizerUnavailable
 from cliport.utils import hub
 
 RANDOM_SEED = 0
@@ -147,7 +153,8 @@ def calibrate_batch_norm(model: nn.Module, n_images: int = 4, size: int = 128) -
     Freshly initialised batch norms hold mean 0 / variance 1, under which the random trunk's
     activations shrink about a thousandfold by layer4, so a random "semantic stream" carries almost
     no signal. One pass in training mode over normalised noise gives every layer unit-scale inputs,
-    as trained weights do; the result is deterministic (see :func:`cliport.models.weights.calibrate_batch_norm`).
+    as trained weights do; the result is deterministic (see
+    :func:`cliport.models.encoders.weights.calibrate_batch_norm`).
     """
     weights.calibrate_batch_norm(
         model.visual,

@@ -1,19 +1,19 @@
 """One frozen open_clip model shared by every semantic stream: image trunk features and sentence features.
 
 The model is any name of ``open_clip.list_models()`` (``--semantic-encoder NAME``, checked first by
-:mod:`cliport.models.clip_registry`); the default is ``RN50-quickgelu`` (CLIPort's CLIP RN50).
+:mod:`cliport.models.encoders.clip_registry`); the default is ``RN50-quickgelu`` (CLIPort's CLIP RN50).
 
 Image trunks (five levels at strides 4, 4, 8, 16, 32, see :class:`FrozenCLIP`):
 
 - open_clip's ResNets (``RN50``, ``RN101``, ``RN50x4``, ... and their ``-quickgelu`` twins): the stem
   and layer1..layer4, as CLIPort uses them.
 - open_clip's ViTs (``ViT-B-16``, ``ViT-B-32``, ``ViT-L-14``, ...): the patch tokens of four blocks
-  spread evenly through the depth, resampled to the four strides (:func:`cliport.models.clip_vit.vit_levels`).
+  spread evenly through the depth, resampled to the four strides (:func:`cliport.models.encoders.clip_vit.vit_levels`).
 - Image towers that come from timm (``ViT-B-16-SigLIP*``, ``convnext_*``, ``EVA*``, ``ViTamin*``, ...)
   are not supported: :class:`UnsupportedEncoderError` says so before the weights are fetched.
 
-Weights: :mod:`cliport.models.clip_weights` (pretrained tags, local files, "random"). Text: the model's own
-tokenizer and context length, :mod:`cliport.models.clip_tokenizer`.
+Weights: :mod:`cliport.models.encoders.clip_weights` (pretrained tags, local files, "random"). Text: the model's own
+tokenizer and context length, :mod:`cliport.models.encoders.clip_tokenizer`.
 """
 
 from __future__ import annotations
@@ -21,11 +21,11 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from cliport.models.clip_registry import MODEL_NAME, UnsupportedEncoderError, check_model_name
-from cliport.models.clip_tokenizer import count_tokens, load_tokenizer
-from cliport.models.clip_vit import vit_block_indices, vit_levels
-from cliport.models.clip_weights import build_clip_model
-from cliport.models.encoders import FrozenEncoder
+from cliport.models.encoders.base import FrozenEncoder
+from cliport.models.encoders.clip_registry import MODEL_NAME, UnsupportedEncoderError, check_model_name
+from cliport.models.encoders.clip_tokenizer import count_tokens, load_tokenizer
+from cliport.models.encoders.clip_vit import vit_block_indices, vit_levels
+from cliport.models.encoders.clip_weights import build_clip_model
 
 # The default model's sentence width and trunk channels (stem, layer1..layer4 at strides 4, 4, 8, 16, 32);
 # other models have their own, see FrozenCLIP.trunk_channels and FrozenCLIP.sentence_dim.
@@ -70,7 +70,7 @@ class FrozenCLIP(FrozenEncoder):
       channels = the stem's last conv and each layer's last bottleneck conv (RN50, RN101:
       64, 256, 512, 1024, 2048; RN50x4: 80, 320, 640, 1280, 2560).
     - ViT towers: five levels of the transformer width (768 for ViT-B) built from patch tokens, see
-      :func:`~cliport.models.clip_vit.vit_levels`.
+      :func:`~cliport.models.encoders.clip_vit.vit_levels`.
 
     ``sentence_dim`` is the text projection's output width (RN50: 1024; RN101, ViT-B-16: 512). Images are
     normalised with the model's ``visual.image_mean/image_std``; sentences use the model's own tokenizer and

@@ -1,7 +1,7 @@
 """The sentence encoder of CLIPort's RN50-BERT ablation: DistilBERT, its tokenizer and its weight sources.
 
 The architecture is ``distilbert-base-uncased``'s (``transformers.DistilBertModel``); how a sentence
-feature is read from it is :class:`cliport.models.rn50_bert_encoder.FrozenRN50BERT`'s.
+feature is read from it is :class:`cliport.models.encoders.rn50_bert_encoder.FrozenRN50BERT`'s.
 
 Weight sources (``bert_weights`` in the agent configs):
 
@@ -34,7 +34,7 @@ import torch
 from torch import nn
 
 from cliport.errors import UserError
-from cliport.models import weights
+from cliport.models.encoders import weights
 from cliport.utils import hub
 
 RANDOM_SEED = 0

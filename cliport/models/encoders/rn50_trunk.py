@@ -33,7 +33,7 @@ import torch
 from torch import nn
 
 from cliport.errors import UserError
-from cliport.models import weights
+from cliport.models.encoders import weights
 from cliport.utils import hub
 
 RANDOM_SEED = 0
