@@ -11,6 +11,8 @@ import difflib
 import importlib
 import os
 import pkgutil
+from collections.abc import Callable
+from typing import TypeVar
 
 from cliport.errors import UnknownNameError
 from cliport.tasks.base import Task
@@ -21,10 +23,13 @@ _GROUPS: dict[str, list[str]] = {}
 _discovered = False
 
 
-def register(name: str):
+_Task = TypeVar("_Task", bound=Task)
+
+
+def register(name: str) -> Callable[[type[_Task]], type[_Task]]:
     """Class decorator: make a Task subclass available as ``make(name)``."""
 
-    def wrap(cls: type[Task]) -> type[Task]:
+    def wrap(cls: type[_Task]) -> type[_Task]:
         if name in _REGISTRY and _REGISTRY[name] is not cls:
             raise ValueError(f"task name {name!r} is registered twice")
         _REGISTRY[name] = cls

@@ -123,7 +123,7 @@ def read_payload(path: str) -> dict[str, Any]:
 def pretrained_file(source: str, checkpoint: str | int | None = None) -> str:
     """The weights file ``PickPlaceAgent.from_pretrained`` reads for ``source`` and ``checkpoint``;
     RunDirError / ConfigError naming the problem."""
-    from cliport.utils.run_dir import LAST, RunDir
+    from cliport.utils.run_dir import RunDir
 
     source = resolve_run_dir(source)  # hf://org/name[@revision] from the Hugging Face cache; a local path as given
     if os.path.isfile(source):
@@ -141,6 +141,6 @@ def pretrained_file(source: str, checkpoint: str | int | None = None) -> str:
             raise RunDirError(f"{source} holds no {PRETRAINED_WEIGHTS} and no scheduled checkpoints")
         return run.checkpoint(steps[-1])
     (step,) = run.resolve(str(checkpoint), run.best_step() if checkpoint == "best" else None, allow_all=False)
-    if step == LAST:
-        return run.checkpoint(LAST)
+    if isinstance(step, str):  # LAST
+        return run.checkpoint(step)
     return run.weights(step) if os.path.isfile(run.weights(step)) else run.checkpoint(step)

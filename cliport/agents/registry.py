@@ -12,7 +12,8 @@ import difflib
 import importlib
 import os
 import pkgutil
-from typing import TYPE_CHECKING, Any
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import torch
 
@@ -27,12 +28,13 @@ _PACKAGE = __name__.rpartition(".")[0]
 _REGISTRY: dict[str, type[PickPlaceAgent]] = {}
 _NOT_AGENTS = {"base", "checkpoint", "config", "decode", "device_options", "loss", "registry"}
 _discovered = False
+_Agent = TypeVar("_Agent", bound="PickPlaceAgent")
 
 
-def register_agent(name: str, config: type[AgentConfig]):
+def register_agent(name: str, config: type[AgentConfig]) -> Callable[[type[_Agent]], type[_Agent]]:
     """Class decorator: make a PickPlaceAgent subclass buildable as ``make_agent(name)``."""
 
-    def wrap(cls: type[PickPlaceAgent]) -> type[PickPlaceAgent]:
+    def wrap(cls: type[_Agent]) -> type[_Agent]:
         if name in _REGISTRY and _REGISTRY[name] is not cls:
             raise ValueError(f"agent name {name!r} is registered twice")
         cls.name = name
@@ -94,7 +96,7 @@ def make_agent(name: str, config: AgentConfig | dict[str, Any] | None = None) ->
         if config is not None and not isinstance(config, dict):
             raise TypeError(f"{name} needs a {cls.config_class.__name__} or a dict, got {type(config).__name__}")
         config = make_config(name, config)
-    return cls(config)
+    return cls(config)  # type: ignore[call-arg]  # registered agents take (config); the base class takes nets
 
 
 def agent_from_payload(

@@ -56,10 +56,10 @@ def _copy_checkpoint(src: str, dst: str) -> dict[str, Any]:
 def _main_checkpoint(chosen: list[int | str], best: int | None) -> int | str:
     """The checkpoint whose weights become the repo's ``model.safetensors``: the val-selected one where it is
     pushed, else the newest scheduled one, else ``last``."""
-    if best in chosen:
-        return best  # type: ignore[return-value]
-    steps = [s for s in chosen if s != layout.LAST]
-    return max(steps) if steps else chosen[0]  # type: ignore[type-var]
+    if best is not None and best in chosen:
+        return best
+    steps = [s for s in chosen if isinstance(s, int)]  # every one but LAST
+    return max(steps) if steps else chosen[0]
 
 
 def build_hub_folder(run_dir: str, out: str, repo_id: str, which: str = "best") -> str:
@@ -83,7 +83,7 @@ def build_hub_folder(run_dir: str, out: str, repo_id: str, which: str = "best") 
     payloads = {step: _copy_checkpoint(run.checkpoint(step), dest.checkpoint(step)) for step in chosen}
     main = _main_checkpoint(chosen, run.best_step())
     payload = payloads[main]
-    step = main if main != layout.LAST else payload.get("trainer", {}).get("step")
+    step = main if isinstance(main, int) else payload.get("trainer", {}).get("step")
     save_weights(payload, dest.model_weights, step=step)  # what from_pretrained("hf://...") reads
     evals = sorted(glob.glob(os.path.join(run.eval_dir, "*.json")))
     if evals:

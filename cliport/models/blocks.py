@@ -135,13 +135,14 @@ class PerSampleBatchNorm2d(nn.BatchNorm2d):
         groups = n // size
         # Group g's images become the batch of one channel block of a single batch_norm call.
         grouped = x.reshape(groups, size, c, h, w).transpose(0, 1).reshape(size, groups * c, h, w)
-        update = self.training and self.running_mean is not None
-        mean = self.running_mean.repeat(groups) if update else None
-        var = self.running_var.repeat(groups) if update else None
+        running = (self.running_mean, self.running_var) if self.training else (None, None)
+        mean = running[0].repeat(groups) if running[0] is not None else None
+        var = running[1].repeat(groups) if running[1] is not None else None
+        momentum = self._momentum() if mean is not None else 0.0  # read only when running statistics update
         out = F.batch_norm(
-            grouped, mean, var, self.weight.repeat(groups), self.bias.repeat(groups), True, self.momentum, self.eps
+            grouped, mean, var, self.weight.repeat(groups), self.bias.repeat(groups), True, momentum, self.eps
         )
-        if update:
+        if mean is not None and var is not None:
             self._update_running(mean, var, groups)
         return out.reshape(size, groups, c, h, w).transpose(0, 1).reshape(n, c, h, w)
 
@@ -149,12 +150,19 @@ class PerSampleBatchNorm2d(nn.BatchNorm2d):
     def _update_running(self, mean: torch.Tensor, var: torch.Tensor, groups: int) -> None:
         """Turns the groups' parallel updates r_g = (1 - m) r + m s_g into the sequential result
         (1 - m)^G r + sum_g (1 - m)^(G - 1 - g) m s_g of G batch-1 steps."""
-        keep = 1.0 - self.momentum
+        keep = 1.0 - self._momentum()
         weights = keep ** torch.arange(groups - 1, -1, -1, dtype=mean.dtype, device=mean.device)
         for running, parallel in ((self.running_mean, mean), (self.running_var, var)):
+            assert running is not None  # _update_running is only called with running statistics
             steps = parallel.view(groups, -1) - keep * running  # m * s_g
             running.mul_(keep**groups).add_((weights[:, None] * steps).sum(0))
-        self.num_batches_tracked.add_(groups)
+        if self.num_batches_tracked is not None:
+            self.num_batches_tracked.add_(groups)
+
+    def _momentum(self) -> float:
+        if self.momentum is None:  # a cumulative average has no per-group weights to fold
+            raise ValueError("PerSampleBatchNorm2d needs a momentum (momentum=None is not supported)")
+        return self.momentum
 
 
 class DoubleConv(nn.Sequential):

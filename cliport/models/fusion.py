@@ -40,7 +40,9 @@ class ConvFusion(nn.Conv2d):
     def __init__(self, ch: int) -> None:
         super().__init__(2 * ch, ch, 1, bias=False)
 
-    def forward(self, spatial: torch.Tensor, semantic: torch.Tensor) -> torch.Tensor:  # type: ignore[override]
+    def forward(  # type: ignore[override]  # two maps, where Conv2d.forward takes one
+        self, spatial: torch.Tensor, semantic: torch.Tensor
+    ) -> torch.Tensor:
         """(N, ch, H, W), (N, ch, H, W) -> (N, ch, H, W)."""
         return super().forward(F.relu(torch.cat([spatial, semantic], dim=1)))
 

@@ -37,7 +37,7 @@ def shrink_map(x: torch.Tensor, map_scale: float) -> torch.Tensor:
     return F.interpolate(x, size=(round(h * map_scale), round(w * map_scale)), mode="area")
 
 
-def grow_logits(logits: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
+def grow_logits(logits: torch.Tensor, size: tuple[int, ...]) -> torch.Tensor:
     """(B, K, h, w) -> (B, K, H, W) bilinearly (pixel centres aligned); unchanged where already (H, W)."""
     if tuple(logits.shape[-2:]) == tuple(size):
         return logits

@@ -23,7 +23,8 @@ from cliport.models.fusion import LateralFusion, language_gate
 
 def _widths(width: float) -> tuple[int, int, int, int, int, int, int]:
     """The decoder's widths 1024, 512, 256, 128, 64, 32, 16 scaled by ``width``."""
-    return tuple(scaled(c, width) for c in (1024, 512, 256, 128, 64, 32, 16))  # type: ignore[return-value]
+    w1024, w512, w256, w128, w64, w32, w16 = (scaled(c, width) for c in (1024, 512, 256, 128, 64, 32, 16))
+    return w1024, w512, w256, w128, w64, w32, w16
 
 
 def _sentence_fc(encoder: FrozenEncoder) -> nn.Linear | None:

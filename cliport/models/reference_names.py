@@ -135,7 +135,7 @@ def frozen_prefixes(agent: str) -> tuple[str, ...]:
     if agent == "transporter_only":
         return ()
     semantic = 2 if agent == "two_stream" else 1  # the stream that holds the CLIP copy
-    return tuple(streams[semantic] + "clip_rn50." for streams in _STREAMS[agent])
+    return tuple(f"{stream}clip_rn50." for streams in _STREAMS[agent] if (stream := streams[semantic]) is not None)
 
 
 def from_reference(

@@ -107,7 +107,7 @@ class TrainConfig:
         config.validate()
         if config.training_recipe().encoder_norms == "train" and hasattr(config.agent_config, "per_net_clip_stats"):
             # Training CLIP's batch norms needs each net's own statistics, saved with its weights.
-            config.agent_config.per_net_clip_stats = True  # type: ignore[attr-defined]
+            config.agent_config.per_net_clip_stats = True
         return config
 
     def training_recipe(self) -> Recipe:

@@ -159,8 +159,9 @@ class FrozenEncoder(nn.Module):
             yield
         finally:
             for owner, attr, original, value in saved:
-                if write_back and owner._buffers[attr] is not value:
-                    value.copy_(owner._buffers[attr])
+                current = owner._buffers[attr]
+                if write_back and current is not None and current is not value:
+                    value.copy_(current)
                 owner._buffers[attr] = original
 
     @torch.no_grad()
@@ -177,11 +178,11 @@ class FrozenEncoder(nn.Module):
             self._sentence_cache[text] = self._encode_sentences([text])[0].float()
         return torch.stack([self._sentence_cache[t] for t in texts])
 
-    def _apply(self, fn, recurse: bool = True):  # type: ignore[no-untyped-def]
+    def _apply(self, fn, recurse: bool = True):  # type: ignore[no-untyped-def]  # torch's private hook, untyped
         self._sentence_cache.clear()
         return super()._apply(fn, recurse)
 
-    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):  # type: ignore[no-untyped-def]
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):  # type: ignore[no-untyped-def]  # torch's hook
         # Weights loaded into a bfloat16 trunk also replace the float32 copy it will be restored from.
         if self._fp32_image_state is not None:
             module = self.image_module()

@@ -18,6 +18,8 @@ tokenizer and context length, :mod:`cliport.models.encoders.clip_tokenizer`.
 
 from __future__ import annotations
 
+from typing import Any
+
 import torch
 from torch import nn
 
@@ -42,9 +44,9 @@ def _trunk_channels(visual: nn.Module) -> tuple[int, int, int, int, int]:
 
     if isinstance(visual, ModifiedResNet):
         layers = (visual.layer1, visual.layer2, visual.layer3, visual.layer4)
-        return (visual.conv3.out_channels, *(layer[-1].conv3.out_channels for layer in layers))  # type: ignore[return-value]
+        return (visual.conv3.out_channels, *(layer[-1].conv3.out_channels for layer in layers))
     if isinstance(visual, VisionTransformer):
-        return (visual.transformer.width,) * 5  # type: ignore[return-value]
+        return (visual.transformer.width,) * 5
     raise UnsupportedEncoderError(f"no trunk adapter for the image tower {type(visual).__name__}")
 
 
@@ -56,8 +58,9 @@ def _sentence_dim(model: nn.Module) -> int | None:
     if isinstance(projection, torch.Tensor):
         return int(projection.shape[-1])
     text = getattr(model, "text", None)  # CustomTextCLIP: a text tower module with its own projection
-    if isinstance(getattr(text, "output_dim", None), int):
-        return text.output_dim  # type: ignore[union-attr]
+    output_dim = getattr(text, "output_dim", None)
+    if isinstance(output_dim, int):
+        return output_dim
     return None
 
 
@@ -77,6 +80,10 @@ class FrozenCLIP(FrozenEncoder):
     context length (:attr:`context_length`).
     """
 
+    model: Any  # an open_clip CLIP model: open_clip ships no type information
+    mean: torch.Tensor
+    std: torch.Tensor
+
     def __init__(self, model: nn.Module, source: str, model_name: str = MODEL_NAME) -> None:
         """``model``: an open_clip CLIP of ``model_name`` (see :func:`build_clip_model`); ``source``: where its
         weights came from (reported by :meth:`sources`)."""
@@ -87,8 +94,8 @@ class FrozenCLIP(FrozenEncoder):
         self.source = source
         self.model_name = model_name
         self._tokenizer = load_tokenizer(model_name)
-        self.context_length = int(getattr(self._tokenizer, "context_length", None) or model.context_length)
-        visual = model.visual
+        self.context_length = int(getattr(self._tokenizer, "context_length", None) or self.model.context_length)
+        visual = self.model.visual
         self.trunk_channels = _trunk_channels(visual)
         #: 0-based indices of the four blocks the ViT levels come from; None for a ResNet tower.
         self.vit_blocks = (
@@ -97,7 +104,7 @@ class FrozenCLIP(FrozenEncoder):
         sentence_dim = _sentence_dim(model)
         if sentence_dim is None:  # not readable from the modules: one tiny pass
             with torch.no_grad():
-                sentence_dim = int(model.encode_text(self._tokenizer(["a"])).shape[-1])
+                sentence_dim = int(self.model.encode_text(self._tokenizer(["a"])).shape[-1])
         self.sentence_dim = sentence_dim
         mean = getattr(visual, "image_mean", None) or CLIP_MEAN
         std = getattr(visual, "image_std", None) or CLIP_STD

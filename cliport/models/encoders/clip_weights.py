@@ -147,7 +147,7 @@ def _is_torchscript(path: Path) -> bool:
         return any(name.endswith("constants.pkl") or "/code/" in name for name in archive.namelist())
 
 
-def calibrate_batch_norm(model: nn.Module, n_images: int = 4, size: int = 128) -> None:
+def calibrate_batch_norm(model: Any, n_images: int = 4, size: int = 128) -> None:
     """Set the image trunk's batch-norm statistics from seeded noise images (random weights only).
 
     Freshly initialised batch norms hold mean 0 / variance 1, under which the random trunk's
@@ -165,7 +165,7 @@ def calibrate_batch_norm(model: nn.Module, n_images: int = 4, size: int = 128) -
     )
 
 
-def _create_model(model_name: str, pretrained: str | None = None) -> nn.Module:
+def _create_model(model_name: str, pretrained: str | None = None) -> Any:
     """``open_clip.create_model``; a Hugging Face text tower whose config cannot be fetched is one line."""
     import open_clip
 
@@ -182,7 +182,7 @@ def _create_model(model_name: str, pretrained: str | None = None) -> nn.Module:
         ) from None
 
 
-def _set_normalisation(model: nn.Module, model_name: str, tag: str | None) -> nn.Module:
+def _set_normalisation(model: Any, model_name: str, tag: str | None) -> nn.Module:
     """Set ``model.visual.image_mean/image_std`` to what its weights expect and return the model.
 
     A pretrained tag: that tag's preprocessing mean/std. Other sources (a file, "random"): the mean/std

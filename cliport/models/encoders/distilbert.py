@@ -28,7 +28,7 @@ import re
 import zlib
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import torch
 from torch import nn
@@ -194,8 +194,12 @@ def _load_bert_folder(folder: Path, label: Path | str) -> tuple[nn.Module, Any]:
     try:
         with _quiet_transformers():
             config = DistilBertConfig.from_pretrained(str(folder), local_files_only=True)
-            model, info = DistilBertModel.from_pretrained(
-                str(folder), config=config, local_files_only=True, output_loading_info=True
+            # output_loading_info=True returns (model, loading info); transformers' annotation names the model only.
+            model, info = cast(
+                tuple[DistilBertModel, dict[str, Any]],
+                DistilBertModel.from_pretrained(
+                    str(folder), config=config, local_files_only=True, output_loading_info=True
+                ),
             )
             tokenizer = DistilBertTokenizerFast.from_pretrained(str(folder), local_files_only=True)
     except (OSError, ValueError, RuntimeError, KeyError, SafetensorError) as err:  # errors for broken files

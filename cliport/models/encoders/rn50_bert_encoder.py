@@ -44,6 +44,9 @@ class FrozenRN50BERT(FrozenEncoder):
     sentence_dim = SENTENCE_DIM
     sentence_projection = SENTENCE_PROJECTION
 
+    mean: torch.Tensor
+    std: torch.Tensor
+
     def __init__(
         self, trunk: ResNet50Trunk, bert: nn.Module, tokenizer: Any, rn50_source: str, bert_source: str
     ) -> None:

@@ -52,7 +52,7 @@ class ResNet50Trunk(nn.Module):
     torchvision ``resnet50`` state dict without the ``fc.*`` tensors.
     """
 
-    def __init__(self, resnet: nn.Module) -> None:
+    def __init__(self, resnet: Any) -> None:  # a torchvision ResNet (torchvision here has no type information)
         super().__init__()
         self.conv1 = resnet.conv1
         self.bn1 = resnet.bn1
