@@ -4,13 +4,31 @@ from __future__ import annotations
 
 import importlib.abc
 import importlib.machinery
+import importlib.metadata
 import importlib.util
 import os
 import sys
+import tomllib
 from collections.abc import Sequence
 from types import ModuleType
 
-__version__ = "0.2.0"
+
+def _version() -> str:
+    """The installed distribution's version (pyproject.toml's ``version``, the one place it is written)."""
+    try:
+        return importlib.metadata.version("cliport")
+    except importlib.metadata.PackageNotFoundError:
+        # Not installed: a bare source tree put on sys.path. Read the same number from the checkout's
+        # pyproject.toml, or say it is unknown (a PEP 440 local version, never equal to a release).
+        pyproject = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "pyproject.toml")
+        try:
+            with open(pyproject, "rb") as f:
+                return str(tomllib.load(f)["project"]["version"])
+        except (OSError, KeyError, tomllib.TOMLDecodeError):
+            return "0+unknown"
+
+
+__version__ = _version()
 
 # Folders of the repository root that are installed as subpackages (pyproject.toml's package-dir).
 CHECKOUT_SUBPACKAGES = ("tasks", "configs")

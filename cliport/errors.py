@@ -35,3 +35,7 @@ class RunDirError(UserError, ValueError):
 class DemoImportError(UserError, ValueError):
     """A source folder, file or image of a demonstration import (``cliport-import``) is unusable; the message
     names the episode, step and field, or the file."""
+
+
+class HubError(UserError, OSError):
+    """The Hugging Face Hub could not be reached or refused (no network, no token, no such repo); one line."""

@@ -174,7 +174,7 @@ class CliportEnv(gym.Env):
         sim = getattr(self, "sim", None)
         if sim is not None:
             sim.close()
-            self.sim = None  # type: ignore[assignment]
+            self.sim = None  # type: ignore[assignment]  # closed: no simulator until the next reset
 
 
 __all__ = ["CliportEnv", "SPLITS"]

@@ -132,7 +132,7 @@ def resolve_clip_weights(args: Any) -> str | None:
         return None
     if args.clip_weights != "auto":
         return args.clip_weights
-    from cliport.models.clip_weights import published_weights_available
+    from cliport.models.encoders.clip_weights import published_weights_available
 
     if published_weights_available():
         return "openai"

@@ -3,15 +3,19 @@
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from cliport.env import shapes
 from cliport.env.transforms import at_height, multiply, yaw_to_quat
-from cliport.tasks import register
 from cliport.tasks.base import GoalStep, Task
 from cliport.tasks.blocks_assets import corner_marker_parts
 from cliport.tasks.colors import COLORS
+from cliport.tasks.registry import register
+
+if TYPE_CHECKING:
+    from cliport.env.environment import Environment
 
 
 @register("align-box-corner")
@@ -23,7 +27,7 @@ class AlignBoxCorner(Task):
     lang_template = "align the brown box with the green corner"
     done_sentence = "done with alignment."
 
-    def reset(self, env, rng: np.random.Generator) -> None:
+    def reset(self, env: Environment, rng: np.random.Generator) -> None:
         super().reset(env, rng)
         sx, sy, sz = (float(v) for v in rng.uniform((0.05, 0.05, 0.01), (0.15, 0.15, 0.06)))
         marker_pose = self.random_pose((sx, sy, 0.0), margin=0.01)
@@ -34,8 +38,8 @@ class AlignBoxCorner(Task):
         box_pose = self.random_pose((sx, sy, sz), margin=0.01)
         assert box_pose is not None, "the table always has room for the box beside the marker"
         shade = float(rng.uniform(0.7, 1.3))
-        color = tuple(min(c * shade, 255.0) for c in COLORS["brown"])
-        box = env.add_object(shapes.box(env.client, (sx, sy, sz), box_pose, color))  # type: ignore[arg-type]
+        r, g, b = (min(c * shade, 255.0) for c in COLORS["brown"])
+        box = env.add_object(shapes.box(env.client, (sx, sy, sz), box_pose, (r, g, b)))
         swapped = (sx / 2 - sy / 2, sy / 2 - sx / 2, 0.0)
         targets = [
             multiply(marker_pose, ((0.0, 0.0, sz / 2), (0.0, 0.0, 0.0, 1.0))),

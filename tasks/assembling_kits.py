@@ -9,15 +9,19 @@ silhouette of its shape, 1/5 each); the -seq variants name one object and one ho
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from cliport.env import shapes
 from cliport.env.transforms import Pose, multiply, yaw_to_quat
-from cliport.tasks import register
 from cliport.tasks.base import GoalStep
 from cliport.tasks.colors import split_colors
 from cliport.tasks.kit_shapes import HEIGHT, SHAPES, ShapeTask, placed_pieces, prism_mesh, split_shapes
+from cliport.tasks.registry import register
+
+if TYPE_CHECKING:
+    from cliport.env.environment import Environment
 
 KIT_SIZE = (0.28, 0.2, 0.005)
 KIT_COLOR = (0.85, 0.82, 0.75)
@@ -59,7 +63,7 @@ class AssemblingKits(KitTask):
     lang_template = "put all the blocks inside the holes they fit in"
     done_sentence = "done assembling blocks."
 
-    def reset(self, env, rng: np.random.Generator) -> None:
+    def reset(self, env: Environment, rng: np.random.Generator) -> None:
         super().reset(env, rng)
         shape_ids = [int(s) for s in rng.choice(split_shapes(self.mode), N_OBJECTS)]
         colors = [str(c) for c in rng.permutation(split_colors(self.mode, unseen=False))[:N_OBJECTS]]
@@ -108,7 +112,7 @@ class AssemblingKitsSeq(KitTask):
     done_sentence = "done assembling kit."
     unseen = True
 
-    def reset(self, env, rng: np.random.Generator) -> None:
+    def reset(self, env: Environment, rng: np.random.Generator) -> None:
         super().reset(env, rng)
         shape_ids = [int(s) for s in rng.choice(split_shapes(self.mode), N_OBJECTS)]
         colors = [str(c) for c in rng.permutation(split_colors(self.mode, self.unseen))[:N_OBJECTS]]

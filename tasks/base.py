@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
@@ -18,6 +18,9 @@ from cliport.env import heightmap as hm
 from cliport.env.bullet import p
 from cliport.env.primitives import PickPlaceSettings, PushSettings
 from cliport.env.transforms import Pose, apply, invert, multiply, quat_to_yaw, yaw_to_quat
+
+if TYPE_CHECKING:
+    from cliport.env.environment import Environment
 
 YAW_TOLERANCE = math.radians(15)
 
@@ -92,11 +95,11 @@ class Task:
         self.rng: np.random.Generator = np.random.default_rng(0)
 
     # ------------------------------------------------------------------ scene
-    def reset(self, env: Any, rng: np.random.Generator) -> None:
+    def reset(self, env: Environment, rng: np.random.Generator) -> None:
         """Build the scene and the goal steps; subclasses call ``super().reset(env, rng)`` first."""
         self.env = env
         self.rng = rng
-        self.object_sizes = {}
+        self.object_sizes: dict[int, tuple[float, float, float]] = {}
         self.goals = []
         self.progress = 0.0
         self._last_total = 0.0
@@ -108,7 +111,7 @@ class Task:
         bounding circle plus ``margin`` fits; uses the task's seeded generator.
         """
         height, _ = self.env.oracle_heightmap()
-        free = np.uint8(height == 0)
+        free = (height == 0).astype(np.uint8)
         free[0, :], free[:, 0], free[-1, :], free[:, -1] = 0, 0, 0, 0
         radius = (math.hypot(size[0], size[1]) / 2 + margin) / hm.PIXEL_SIZE
         k = max(int(math.ceil(radius)), 1)
@@ -127,7 +130,7 @@ class Task:
     # ------------------------------------------------------------------ reward
     def _pose(self, body: int) -> Pose:
         pos, quat = p.getBasePositionAndOrientation(body, physicsClientId=self.env.client)
-        return tuple(pos), tuple(quat)  # type: ignore[return-value]
+        return tuple(pos), tuple(quat)
 
     def is_match(self, step: GoalStep, i: int, j: int) -> bool:
         """Whether object i of ``step`` sits at target j (pose metric)."""
@@ -135,7 +138,7 @@ class Task:
         target = step.targets[j]
         if np.linalg.norm(np.subtract(pos[:2], target[0][:2])) >= step.tolerance:
             return False
-        symmetry = step.symmetries[i]  # type: ignore[index]
+        symmetry = step.symmetries[i]  # type: ignore[index]  # GoalStep.__post_init__ sets it
         if step.rotations and symmetry > 0:
             return folded_yaw_error(quat_to_yaw(quat), quat_to_yaw(target[1]), symmetry) < YAW_TOLERANCE
         return True
@@ -150,8 +153,7 @@ class Task:
         owner: dict[int, int] = {}
 
         def augment(i: int, seen: set[int]) -> bool:
-            for j in np.nonzero(ok[i])[0]:
-                j = int(j)
+            for j in map(int, np.nonzero(ok[i])[0]):
                 if j in seen:
                     continue
                 seen.add(j)
@@ -184,7 +186,7 @@ class Task:
 
     def set_object_size(self, body: int, size: tuple[float, float, float]) -> None:
         """Record a body's box size (its own frame) for the zone metric; needed for compound bodies."""
-        self.object_sizes[body] = tuple(size)  # type: ignore[assignment]
+        self.object_sizes[body] = (float(size[0]), float(size[1]), float(size[2]))
 
     def object_half_extents(self, body: int) -> np.ndarray:
         """Half extents of a body's box in its own frame: the recorded size, else its collision box,
@@ -283,7 +285,7 @@ class Task:
         vertical ray through the drawn pixel does not hit the body first, the nearest pixel whose ray
         does is used instead, so the suction cup lands on something it can hold.
         """
-        mask = np.uint8(ids == body)
+        mask = (ids == body).astype(np.uint8)
         eroded = cv2.erode(mask, np.ones((3, 3), np.uint8))
         if eroded.any():
             mask = eroded
@@ -304,7 +306,7 @@ class Task:
         """Whether a vertical ray from 1 cm above each point down to 2 cm below it hits ``body`` first."""
         starts = [(x, y, z + 0.01) for x, y, z in points]
         ends = [(x, y, z - 0.02) for x, y, z in points]
-        hits = []
+        hits: list[bool] = []
         for k in range(0, len(points), p.MAX_RAY_INTERSECTION_BATCH_SIZE):
             batch = p.rayTestBatch(
                 starts[k : k + p.MAX_RAY_INTERSECTION_BATCH_SIZE],

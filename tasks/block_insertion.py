@@ -3,15 +3,19 @@
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from cliport.env import shapes
 from cliport.env.transforms import at_height
-from cliport.tasks import register
 from cliport.tasks.base import GoalStep, Task
 from cliport.tasks.blocks_assets import ELL_HEIGHT, ELL_SIZE, FIXTURE_SIZE, ell_polygon, fixture_parts
 from cliport.tasks.colors import COLORS
+from cliport.tasks.registry import register
+
+if TYPE_CHECKING:
+    from cliport.env.environment import Environment
 
 
 @register("block-insertion")
@@ -22,7 +26,7 @@ class BlockInsertion(Task):
     lang_template = "put the L shape block in the L shape hole"
     done_sentence = "done with insertion."
 
-    def reset(self, env, rng: np.random.Generator) -> None:
+    def reset(self, env: Environment, rng: np.random.Generator) -> None:
         super().reset(env, rng)
         fixture_pose = self.random_pose(FIXTURE_SIZE, margin=0.01)
         assert fixture_pose is not None, "an empty table always has room for the fixture"

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -20,6 +21,9 @@ from cliport.env import shapes
 from cliport.env.transforms import Pose, invert, multiply, quat_to_yaw, yaw_to_quat
 from cliport.tasks.base import GoalStep, Task
 from cliport.tasks.colors import COLORS
+
+if TYPE_CHECKING:
+    from cliport.env.environment import Environment
 
 HEIGHT = 0.02  # extrusion height (m)
 TRAIN_SHAPES = list(range(14))
@@ -271,7 +275,7 @@ class SplitYawOracle(Task):
         inverse grasp-relative object pose (yaw only)."""
         obj = self._pose(step.objects[i])
         obj_yaw = quat_to_yaw(obj[1])
-        symmetry = step.symmetries[i] if step.rotations else 0.0  # type: ignore[index]
+        symmetry = step.symmetries[i] if step.rotations else 0.0  # type: ignore[index]  # set by __post_init__
         yaw = obj_yaw
         if symmetry > 0:
             yaw += math.remainder(quat_to_yaw(step.targets[j][1]) - obj_yaw, symmetry)
@@ -298,7 +302,7 @@ class ShapeTask(SplitYawOracle):
         self.object_shapes: dict[int, int] = {}
         self.object_colors: dict[int, str] = {}
 
-    def reset(self, env, rng: np.random.Generator) -> None:
+    def reset(self, env: Environment, rng: np.random.Generator) -> None:
         super().reset(env, rng)
         self.object_shapes, self.object_colors = {}, {}
 

@@ -12,15 +12,20 @@ step reward is the larger of the two directions' matched fractions.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from cliport.env.primitives import PickPlaceSettings
 from cliport.env.transforms import Pose, apply, at_height
-from cliport.tasks import register
 from cliport.tasks.base import GoalStep, Task
 from cliport.tasks.colors import COLORS
+from cliport.tasks.registry import register
 from cliport.tasks.rope_assets import BEAD_RADIUS, N_BEADS, SIDE_LENGTH, make_rope, rope_path
 from cliport.tasks.sweeping_piles import square_outline
+
+if TYPE_CHECKING:
+    from cliport.env.environment import Environment
 
 TOLERANCE = 0.02
 AIM_SHRINK = 0.94  # the oracle aims each bead this fraction of the way from the side's middle to its target
@@ -51,7 +56,9 @@ class RopeTask(Task):
     # dragged chain whips and folds; the oracle then succeeded on 74 of 100 seeds instead of 99.
     primitive_settings = PickPlaceSettings(height=0.02, speed=0.001)
 
-    def build(self, env, rng: np.random.Generator, side: tuple[str, str], lang_goal: str | None = None) -> None:
+    def build(
+        self, env: Environment, rng: np.random.Generator, side: tuple[str, str], lang_goal: str | None = None
+    ) -> None:
         """Add the square, the rope and one goal step for the named side."""
         square = self.random_pose((SIDE_LENGTH, SIDE_LENGTH, 0.0))
         assert square is not None
@@ -87,7 +94,7 @@ class RopeTask(Task):
         _, errors = self.best_direction(step)
         return step.share * float(np.mean(errors < step.tolerance))
 
-    def reset(self, env, rng: np.random.Generator) -> None:
+    def reset(self, env: Environment, rng: np.random.Generator) -> None:
         super().reset(env, rng)
         self._oracle_direction: int | None = None
         self._oracle_picks: list[int] = []
@@ -146,7 +153,7 @@ def side_targets(square: Pose, side: tuple[str, str]) -> list[Pose]:
     a, b = np.array(CORNERS[side[0]]), np.array(CORNERS[side[1]])
     fractions = (np.arange(N_BEADS) + 0.5) / N_BEADS
     local = np.array([[*(a + (b - a) * f), BEAD_RADIUS] for f in fractions])
-    return [(tuple(float(v) for v in xyz), (0.0, 0.0, 0.0, 1.0)) for xyz in apply(square, local)]
+    return [((float(x), float(y), float(z)), (0.0, 0.0, 0.0, 1.0)) for x, y, z in apply(square, local)]
 
 
 @register("manipulating-rope")
@@ -155,7 +162,7 @@ class ManipulatingRope(RopeTask):
 
     lang_template = "manipulate the rope to complete the square"
 
-    def reset(self, env, rng: np.random.Generator) -> None:
+    def reset(self, env: Environment, rng: np.random.Generator) -> None:
         super().reset(env, rng)
         self.build(env, rng, SIDES[0])
 
@@ -167,7 +174,7 @@ class AlignRope(RopeTask):
     lang_template = None
     done_sentence = "done aligning the rope."
 
-    def reset(self, env, rng: np.random.Generator) -> None:
+    def reset(self, env: Environment, rng: np.random.Generator) -> None:
         super().reset(env, rng)
         side = SIDES[int(rng.integers(len(SIDES)))]
         self.build(env, rng, side, lang_goal=f"align the rope from {side[0]} to {side[1]}")

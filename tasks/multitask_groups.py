@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from cliport.tasks import register_group
+from cliport.tasks.registry import register_group
 
 RAVENS = [
     "align-box-corner",

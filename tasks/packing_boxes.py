@@ -7,15 +7,19 @@ four distractor boxes of other colours stay out ("pack all the {c1} and {c2} blo
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from cliport.env import shapes
-from cliport.env.transforms import at_height, multiply
-from cliport.tasks import register
+from cliport.env.transforms import Pose, at_height, multiply
 from cliport.tasks.base import GoalStep
 from cliport.tasks.colors import COLORS, split_colors
 from cliport.tasks.packing_assets import FLOOR_THICKNESS, ZoneOracleMixin, container, kd_split
+from cliport.tasks.registry import register
+
+if TYPE_CHECKING:
+    from cliport.env.environment import Environment
 
 MIN_SIDE = 0.05  # smallest box side before the clearance
 CLEARANCE = 0.006  # each box is this much smaller than its cell along x and y
@@ -33,7 +37,9 @@ class PackingBoxesBase(ZoneOracleMixin):
     interior_range = (0.1, 0.3)
     max_boxes = 12
 
-    def build_container(self, env, min_cells: int = 1):
+    def build_container(
+        self, env: Environment, min_cells: int = 1
+    ) -> tuple[Pose, tuple[float, float], list[tuple[Pose, tuple[float, float, float]]]]:
         """Place the container; returns (container pose, interior size, cells as (target pose, box size))."""
         rng = self.rng
         while True:
@@ -53,14 +59,20 @@ class PackingBoxesBase(ZoneOracleMixin):
             targets.append((multiply(pose, local), box_size))
         return pose, interior, targets
 
-    def scatter_box(self, env, size: tuple[float, float, float], color) -> int | None:
+    def scatter_box(self, env: Environment, size: tuple[float, float, float], color: shapes.Color) -> int | None:
         pose = self.random_pose(size, margin=0.005)
         if pose is None:
             return None
         return env.add_object(shapes.box(env.client, size, pose, color))
 
     def add_packing_goal(
-        self, boxes, targets, zone_pose, interior, lang_goal: str | None = None, zone_top: float | None = None
+        self,
+        boxes: list[int],
+        targets: list[Pose],
+        zone_pose: Pose,
+        interior: tuple[float, float],
+        lang_goal: str | None = None,
+        zone_top: float | None = None,
     ) -> None:
         self.add_goal(
             GoalStep(
@@ -82,7 +94,7 @@ class PackingBoxesBase(ZoneOracleMixin):
 class PackingBoxes(PackingBoxesBase):
     lang_template = "pack all the boxes inside the brown box"
 
-    def reset(self, env, rng: np.random.Generator) -> None:
+    def reset(self, env: Environment, rng: np.random.Generator) -> None:
         super().reset(env, rng)
         zone_pose, interior, cells = self.build_container(env)
         colors = [c for c in COLORS if c != "brown"]
@@ -106,7 +118,7 @@ class PackingBoxesPairs(PackingBoxesBase):
     done_sentence = "done packing blocks."
     n_distractors = 4
 
-    def reset(self, env, rng: np.random.Generator) -> None:
+    def reset(self, env: Environment, rng: np.random.Generator) -> None:
         super().reset(env, rng)
         zone_pose, interior, cells = self.build_container(env, min_cells=2)
         names = [c for c in split_colors(self.mode, self.unseen) if c != "brown"]

@@ -90,7 +90,7 @@ def centred_parts(spec: ObjectSpec) -> tuple[tuple[dict, ...], tuple[float, floa
         part["position"] = tuple(float(c) for c in np.asarray(part.get("position", (0.0, 0.0, 0.0))) + shift)
         out.append(part)
     half = tuple(float(c) for c in (hi - lo) / 2)
-    return tuple(out), half  # type: ignore[return-value]
+    return tuple(out), half  # type: ignore[return-value]  # tuple() of an iterable has no length in its type
 
 
 def build_object(env: Any, spec: ObjectSpec, pose: Pose, mass: float = 0.05) -> tuple[int, tuple[float, float, float]]:
@@ -275,7 +275,7 @@ def load_object_folder(path: str) -> tuple[ObjectSpec, ...]:
             raise ValueError(f"{path}: object {e['name']!r} has split {split!r}; use 'seen' or 'unseen'")
         make = functools.partial(mesh_parts, e["mesh"], float(e.get("size", 0.065)))
         color = tuple(e["color"]) if "color" in e else _color_for(e["name"])
-        specs.append(ObjectSpec(e["name"], make, color, split))  # type: ignore[arg-type]
+        specs.append(ObjectSpec(e["name"], make, color, split))
     return tuple(specs)
 
 

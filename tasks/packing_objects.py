@@ -13,13 +13,18 @@ Seen variants use seen objects in every mode; unseen variants use unseen objects
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from cliport.env.transforms import at_height, multiply
-from cliport.tasks import register
 from cliport.tasks.base import GoalStep
 from cliport.tasks.packing_assets import FLOOR_THICKNESS, ZoneOracleMixin, container, kd_split
 from cliport.tasks.packing_object_set import ObjectSpec, build_object, centred_parts, object_set, split_objects
+from cliport.tasks.registry import register
+
+if TYPE_CHECKING:
+    from cliport.env.environment import Environment
 
 CELL_MIN_SIDE = 0.085  # every object's footprint diagonal is below this
 WALL_HEIGHT = 0.03
@@ -35,7 +40,7 @@ class PackingObjects(ZoneOracleMixin):
     done_sentence = "done packing objects."
     interior_range = (0.2, 0.3)
 
-    def reset(self, env, rng: np.random.Generator) -> None:
+    def reset(self, env: Environment, rng: np.random.Generator) -> None:
         super().reset(env, rng)
         self.half_extents: dict[int, np.ndarray] = {}
         self.names: dict[int, str] = {}  # body id -> object name
@@ -51,10 +56,10 @@ class PackingObjects(ZoneOracleMixin):
         self.specs = split_objects(object_set(), self.mode, self.unseen)
         self.build_goals(env, rng)
 
-    def build_goals(self, env, rng: np.random.Generator) -> None:
+    def build_goals(self, env: Environment, rng: np.random.Generator) -> None:
         raise NotImplementedError
 
-    def spawn(self, env, spec: ObjectSpec) -> int | None:
+    def spawn(self, env: Environment, spec: ObjectSpec) -> int | None:
         """Drop an object of ``spec`` on a free table spot; its body id, or None when the table is full."""
         pose = self.random_pose((0.08, 0.08, 0.0), margin=0.005)
         if pose is None:
@@ -92,7 +97,7 @@ class PackingObjects(ZoneOracleMixin):
 
 
 class PackingObjectsSeq(PackingObjects):
-    def build_goals(self, env, rng: np.random.Generator) -> None:
+    def build_goals(self, env: Environment, rng: np.random.Generator) -> None:
         n = min(len(self.cells), len(self.specs))
         chosen = [self.specs[int(k)] for k in rng.choice(len(self.specs), n, replace=False)]
         n_pack = int(rng.integers(1, n)) if n > 1 else 1
@@ -102,17 +107,18 @@ class PackingObjectsSeq(PackingObjects):
             bodies.append(body)
         steps = []
         for k in range(n_pack):
-            if bodies[k] is None:
+            body = bodies[k]
+            if body is None:
                 continue
             lang = f"pack the {chosen[k].name} in the brown box"
-            steps.append((bodies[k], self.target(k, bodies[k]), lang))
+            steps.append((body, self.target(k, body), lang))
         for body, target, lang in steps:
             self.add_goal(self.zone_step([body], [target], 1.0 / len(steps), lang))
         self.max_steps = len(steps) + 1
 
 
 class PackingObjectsGroup(PackingObjects):
-    def build_goals(self, env, rng: np.random.Generator) -> None:
+    def build_goals(self, env: Environment, rng: np.random.Generator) -> None:
         target_spec = self.specs[int(rng.integers(len(self.specs)))]
         n_copies = int(rng.integers(2, min(len(self.cells), 3) + 1)) if len(self.cells) > 1 else 1
         others = [s for s in self.specs if s.name != target_spec.name]

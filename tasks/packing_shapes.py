@@ -2,14 +2,19 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from cliport.env import shapes
 from cliport.env.transforms import at_height
-from cliport.tasks import register
 from cliport.tasks.base import GoalStep
 from cliport.tasks.colors import COLORS, split_colors
 from cliport.tasks.kit_shapes import SHAPES, ShapeTask, split_shapes
+from cliport.tasks.registry import register
+
+if TYPE_CHECKING:
+    from cliport.env.environment import Environment
 
 N_OBJECTS = 5
 WALL_HEIGHT = 0.05
@@ -36,7 +41,7 @@ class PackingShapes(ShapeTask):
     template = "pack the {shape} in the brown box"
     done_sentence = "done packing shapes."
 
-    def reset(self, env, rng: np.random.Generator) -> None:
+    def reset(self, env: Environment, rng: np.random.Generator) -> None:
         super().reset(env, rng)
         shape_ids = [int(s) for s in rng.choice(split_shapes(self.mode), N_OBJECTS, replace=False)]
         colors = [str(c) for c in rng.permutation(split_colors(self.mode, unseen=True))[:N_OBJECTS]]

@@ -12,16 +12,19 @@ each worth 1/18 with the zone metric over the pallet.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from cliport.env import shapes
 from cliport.env.bullet import p
 from cliport.env.transforms import multiply, yaw_to_quat
-from cliport.tasks import register
 from cliport.tasks.base import GoalStep
 from cliport.tasks.packing_assets import PALLET_HEIGHT, PALLET_SIZE, ZoneOracleMixin, pallet
+from cliport.tasks.registry import register
+
+if TYPE_CHECKING:
+    from cliport.env.environment import Environment
 
 STACK = 0.19  # side of the cubic stack (m)
 MARGIN = 0.01  # gap between neighbouring boxes
@@ -58,7 +61,7 @@ class PalletizingBoxes(ZoneOracleMixin):
     max_steps = 30
     lang_template = "stack all the boxes on the pallet"
 
-    def reset(self, env, rng: np.random.Generator) -> None:
+    def reset(self, env: Environment, rng: np.random.Generator) -> None:
         super().reset(env, rng)
         pallet(env, PALLET_POSE)
         zone = [(PALLET_POSE, (*PALLET_SIZE, 0.25))]

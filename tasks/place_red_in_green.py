@@ -2,14 +2,19 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from cliport.env import shapes
 from cliport.env.transforms import at_height
-from cliport.tasks import register
 from cliport.tasks.base import GoalStep, Task
 from cliport.tasks.blocks_assets import BLOCK, BOWL, BOWL_TOLERANCE
 from cliport.tasks.colors import COLORS
+from cliport.tasks.registry import register
+
+if TYPE_CHECKING:
+    from cliport.env.environment import Environment
 
 N_DISTRACTORS = 10
 
@@ -27,7 +32,7 @@ class PlaceRedInGreen(Task):
     place_yaw_informative = False  # round bowls: the expert places at a bowl's random yaw
     lang_template = "put the red blocks in a green bowl"
 
-    def reset(self, env, rng: np.random.Generator) -> None:
+    def reset(self, env: Environment, rng: np.random.Generator) -> None:
         super().reset(env, rng)
         n_bowls = int(rng.integers(1, 4))
         n_blocks = int(rng.integers(1, n_bowls + 1))

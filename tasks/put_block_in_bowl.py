@@ -2,14 +2,19 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from cliport.env import shapes
 from cliport.env.transforms import at_height
-from cliport.tasks import register
 from cliport.tasks.base import GoalStep, Task
 from cliport.tasks.blocks_assets import BLOCK, BOWL, BOWL_TOLERANCE
 from cliport.tasks.colors import COLORS, split_colors
+from cliport.tasks.registry import register
+
+if TYPE_CHECKING:
+    from cliport.env.environment import Environment
 
 N_DISTRACTORS = 6
 
@@ -27,7 +32,7 @@ class _PutBlockInBowl(Task):
     place_yaw_informative = False  # round bowls: the expert places at a bowl's random yaw
     done_sentence = "done placing blocks in bowls."
 
-    def reset(self, env, rng: np.random.Generator) -> None:
+    def reset(self, env: Environment, rng: np.random.Generator) -> None:
         super().reset(env, rng)
         palette = split_colors(self.mode, self.unseen)
         n_bowls = int(rng.integers(1, 4))

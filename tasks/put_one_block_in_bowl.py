@@ -9,16 +9,19 @@ a laptop (``scripts/quickstart.py --language``); put-block-in-bowl has 1-3 targe
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from cliport.env import shapes
 from cliport.env.transforms import at_height
-from cliport.tasks import register
 from cliport.tasks.base import GoalStep, Task
 from cliport.tasks.blocks_assets import BLOCK, BOWL, BOWL_TOLERANCE
 from cliport.tasks.colors import COLORS, split_colors
+from cliport.tasks.registry import register
+
+if TYPE_CHECKING:
+    from cliport.env.environment import Environment
 
 N_BLOCKS = 3
 N_BOWLS = 2
@@ -39,7 +42,7 @@ class _PutOneBlockInBowl(Task):
     place_yaw_informative = False  # round bowls
     done_sentence = "done placing the block in the bowl."
 
-    def reset(self, env, rng: np.random.Generator) -> None:
+    def reset(self, env: Environment, rng: np.random.Generator) -> None:
         super().reset(env, rng)
         palette = split_colors(self.mode, self.unseen)
         chosen = [palette[int(k)] for k in rng.permutation(len(palette))[: N_BLOCKS + N_BOWLS]]

@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from cliport.env import shapes
 from cliport.env.bullet import p
+
+if TYPE_CHECKING:
+    from cliport.env.environment import Environment
 
 N_BEADS = 20
 BEAD_RADIUS = 0.005
@@ -34,7 +38,7 @@ def rope_path(rng: np.random.Generator, bounds: np.ndarray, margin: float = 0.04
     raise RuntimeError("could not fit the rope inside the workspace")
 
 
-def make_rope(env, path: np.ndarray, color: shapes.Color, end_color: shapes.Color) -> list[int]:
+def make_rope(env: Environment, path: np.ndarray, color: shapes.Color, end_color: shapes.Color) -> list[int]:
     """Beads at ``path`` (N, 2) resting on the table, consecutive beads joined at their midpoint.
 
     Each bead is registered as a "deformable" object (graspable by suction). The end beads get

@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from cliport.env import shapes
 from cliport.env.transforms import Pose, at_height, multiply
-from cliport.tasks import register
 from cliport.tasks.base import GoalStep, Task
 from cliport.tasks.blocks_assets import (
     BLOCK,
@@ -18,6 +18,10 @@ from cliport.tasks.blocks_assets import (
     pyramid_targets,
 )
 from cliport.tasks.colors import COLORS, split_colors
+from cliport.tasks.registry import register
+
+if TYPE_CHECKING:
+    from cliport.env.environment import Environment
 
 BLOCK_SYMMETRY = math.pi / 2
 
@@ -28,7 +32,7 @@ class _PyramidScene(Task):
     max_steps = 12
     done_sentence = "done stacking block pyramid."
 
-    def build(self, env, block_colors: list[str]) -> tuple[list[int], list[Pose]]:
+    def build(self, env: Environment, block_colors: list[str]) -> tuple[list[int], list[Pose]]:
         """Add the base (tiles lightest to darkest along its +y) and one block per colour; return the
         block ids and the six target poses (bottom row lightest to darkest tile, middle row, top)."""
         base_pose = self.random_pose(PYRAMID_BASE_SIZE, margin=0.02)
@@ -52,7 +56,7 @@ class StackBlockPyramid(_PyramidScene):
     COLORS_BY_ROW = (("purple", "blue", "green"), ("yellow", "orange"), ("red",))
     ROW_TEXT = ("the green, blue and purple blocks", "the yellow and orange blocks", "the red block")
 
-    def reset(self, env, rng: np.random.Generator) -> None:
+    def reset(self, env: Environment, rng: np.random.Generator) -> None:
         super().reset(env, rng)
         colors = [c for row in self.COLORS_BY_ROW for c in row]
         blocks, targets = self.build(env, colors)
@@ -79,7 +83,7 @@ class _StackBlockPyramidSeq(_PyramidScene):
     unseen = False
     lang_template = None
 
-    def reset(self, env, rng: np.random.Generator) -> None:
+    def reset(self, env: Environment, rng: np.random.Generator) -> None:
         super().reset(env, rng)
         palette = split_colors(self.mode, self.unseen)
         names = [palette[int(k)] for k in rng.permutation(len(palette))[:6]]

@@ -8,6 +8,7 @@ centre), so an episode succeeds only when every cube's centre lies inside the zo
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -15,9 +16,12 @@ from cliport.env import shapes
 from cliport.env.bullet import p
 from cliport.env.primitives import PushSettings
 from cliport.env.transforms import Pose, apply, at_height, invert, yaw_to_quat
-from cliport.tasks import register
 from cliport.tasks.base import GoalStep, Task
 from cliport.tasks.colors import COLORS, split_colors
+from cliport.tasks.registry import register
+
+if TYPE_CHECKING:
+    from cliport.env.environment import Environment
 
 CUBE = (0.01, 0.01, 0.01)
 CUBE_MASS = 0.01
@@ -37,7 +41,11 @@ PRIMITIVE_START_BACK = 0.02  # ... and starts it 2 cm behind pose0
 
 
 def square_outline(
-    env, pose: Pose, size: float, color: tuple[float, float, float], sides: tuple[str, ...] = ("+x", "-x", "+y", "-y")
+    env: Environment,
+    pose: Pose,
+    size: float,
+    color: tuple[float, float, float],
+    sides: tuple[str, ...] = ("+x", "-x", "+y", "-y"),
 ) -> int:
     """A fixed, visual-only square outline of side ``size`` (bars on the named sides) lying on the table."""
     half = size / 2
@@ -143,7 +151,7 @@ class SweepingPiles(PileTask):
 
     lang_template = "push the pile of blocks into the green square"
 
-    def reset(self, env, rng: np.random.Generator) -> None:
+    def reset(self, env: Environment, rng: np.random.Generator) -> None:
         super().reset(env, rng)
         zone_pose = self.random_pose(ZONE)
         assert zone_pose is not None
@@ -170,7 +178,7 @@ class SeparatingPiles(PileTask):
     lang_template = None
     done_sentence = "done separating the pile."
 
-    def reset(self, env, rng: np.random.Generator) -> None:
+    def reset(self, env: Environment, rng: np.random.Generator) -> None:
         super().reset(env, rng)
         colors = split_colors(self.mode, self.unseen)
         target_color, other_color, block_color = (colors[int(k)] for k in rng.choice(len(colors), 3, replace=False))

@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from cliport.env import shapes
 from cliport.env.transforms import at_height, multiply
-from cliport.tasks import register
 from cliport.tasks.base import GoalStep, Task
 from cliport.tasks.blocks_assets import (
     BROWN_SHADES,
@@ -18,6 +19,10 @@ from cliport.tasks.blocks_assets import (
     stand_parts,
 )
 from cliport.tasks.colors import COLORS, split_colors
+from cliport.tasks.registry import register
+
+if TYPE_CHECKING:
+    from cliport.env.environment import Environment
 
 RING_MASS = 0.05
 ROD_NAMES = ("lighter brown side", "middle of the stand", "darker brown side")
@@ -50,7 +55,7 @@ class _TowersScene(Task):
     def move_text(self, color: str, rod: int) -> str | None:
         return None
 
-    def reset(self, env, rng: np.random.Generator) -> None:
+    def reset(self, env: Environment, rng: np.random.Generator) -> None:
         super().reset(env, rng)
         base_pose = self.random_pose(STAND_SIZE, margin=0.02)
         assert base_pose is not None, "an empty table always has room for the stand"

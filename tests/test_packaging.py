@@ -1,4 +1,5 @@
-"""``cliport.tasks`` and ``cliport.configs`` import from a checkout, an installed copy, and from any directory."""
+"""``cliport.tasks`` and ``cliport.configs`` import from a checkout, an installed copy, and from any directory; a
+non-editable install holds every module."""
 
 from __future__ import annotations
 
@@ -78,6 +79,10 @@ def test_non_editable_install_from_the_repository_root_and_elsewhere(tmp_path: P
     assert out.returncode == 0, out.stderr[-3000:]
     installed = target / "cliport"
     assert (installed / "tasks" / "__init__.py").is_file() and (installed / "configs" / "env.toml").is_file()
+    # Every module of the checkout is installed: pyproject.toml's list of packages misses no subpackage.
+    modules = [p.relative_to(REPO / "cliport") for p in (REPO / "cliport").rglob("*.py")]
+    assert [str(m) for m in modules if not (installed / m).is_file()] == []
+    assert (installed / "models" / "encoders" / "clip_encoder.py").is_file()
 
     # From the root the checkout's cliport/ shadows the installed one; its tasks must come from the checkout.
     assert _probe(REPO, target) == [

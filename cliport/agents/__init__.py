@@ -1,142 +1,23 @@
-"""Pick-and-place agents, found by name through a registry: the only list of agents in the project.
+"""Pick-and-place agents, found by name through a registry (:mod:`cliport.agents.registry` says what an agent is).
 
-An agent is one module in this package that defines a :class:`PickPlaceAgent` subclass decorated with
-``@register_agent("name", ConfigClass)``, and its defaults in ``configs/<name>.toml``. Everything that
-names agents (CLI choices, the reproduction study, scripts, published numbers) asks :func:`agent_names`
-and the agent classes' attributes (``uses_language``, ``weight_sources``, ``published_columns``).
+The names below are re-exported from the modules that hold them: the base class (``base``), checkpoint files
+(``checkpoint``), the configs (``config``), and the registry with ``make_agent`` and ``load_agent`` (``registry``).
+Nothing in this package imports this ``__init__``.
 """
-
-from __future__ import annotations
-
-import difflib
-import importlib
-import os
-import pkgutil
-from typing import Any
-
-import torch
 
 from cliport.agents.base import PickPlaceAgent
 from cliport.agents.checkpoint import read_checkpoint, read_weights
 from cliport.agents.config import AgentConfig
-from cliport.errors import CheckpointError, ConfigError, UnknownNameError
-
-_REGISTRY: dict[str, type[PickPlaceAgent]] = {}
-_NOT_AGENTS = {"base", "checkpoint", "config", "decode", "device_options", "loss"}
-_discovered = False
-
-
-def register_agent(name: str, config: type[AgentConfig]):
-    """Class decorator: make a PickPlaceAgent subclass buildable as ``make_agent(name)``."""
-
-    def wrap(cls: type[PickPlaceAgent]) -> type[PickPlaceAgent]:
-        if name in _REGISTRY and _REGISTRY[name] is not cls:
-            raise ValueError(f"agent name {name!r} is registered twice")
-        cls.name = name
-        cls.config_class = config
-        _REGISTRY[name] = cls
-        return cls
-
-    return wrap
-
-
-def _discover() -> None:
-    global _discovered
-    if not _discovered:
-        for info in pkgutil.iter_modules(__path__):
-            if info.name not in _NOT_AGENTS and not info.name.startswith("_"):
-                importlib.import_module(f"{__name__}.{info.name}")
-        _discovered = True
-
-
-def agent_names() -> list[str]:
-    """Every registered agent name, sorted."""
-    _discover()
-    return sorted(_REGISTRY)
-
-
-def agent_class(name: str) -> type[PickPlaceAgent]:
-    """The class registered as ``name``; UnknownNameError (with the known names) otherwise."""
-    _discover()
-    if name not in _REGISTRY:
-        close = difflib.get_close_matches(name, list(_REGISTRY), n=1)
-        hint = f" (did you mean {close[0]!r}?)" if close else ""
-        raise UnknownNameError(f"unknown agent {name!r}{hint}; choose one of: {', '.join(sorted(_REGISTRY))}")
-    return _REGISTRY[name]
-
-
-def config_classes() -> list[type[AgentConfig]]:
-    """The config classes of all agents (each once), for deriving command-line flags."""
-    out: list[type[AgentConfig]] = []
-    for name in agent_names():
-        cls = _REGISTRY[name].config_class
-        if cls not in out:
-            out.append(cls)
-    return out
-
-
-def make_config(name: str, overrides: dict[str, Any] | None = None) -> AgentConfig:
-    """The config of agent ``name``: ``configs/<name>.toml`` updated with ``overrides`` (checked)."""
-    from cliport.utils.config import load
-
-    config = load(agent_class(name).config_class, name, overrides)
-    config.validate()
-    return config
-
-
-def make_agent(name: str, config: AgentConfig | dict[str, Any] | None = None) -> PickPlaceAgent:
-    """Build agent ``name`` from a config object, a dict of overrides of the defaults, or the defaults."""
-    cls = agent_class(name)
-    if not isinstance(config, cls.config_class):
-        if config is not None and not isinstance(config, dict):
-            raise TypeError(f"{name} needs a {cls.config_class.__name__} or a dict, got {type(config).__name__}")
-        config = make_config(name, config)
-    return cls(config)
-
-
-def agent_from_payload(
-    payload: dict[str, Any],
-    path: str | os.PathLike[str],
-    device: str | torch.device = "cpu",
-    weights: dict[str, str] | None = None,
-) -> PickPlaceAgent:
-    """Build the agent a checkpoint payload (``read_checkpoint`` or ``read_weights``) describes and load its
-    weights; ``weights`` overrides recorded pretrained sources (see :func:`load_agent`). ``path`` names the
-    file in errors."""
-    cls = agent_class(payload["agent"])
-    config = dict(payload["config"])
-    overrides = dict(weights or {})
-    for field in cls.weight_sources:
-        recorded = payload.get("weight_sources", {}).get(field) or payload.get(field)
-        config[field] = overrides.get(field) or recorded or config.get(field)
-    try:
-        agent = make_agent(payload["agent"], config)
-    except ConfigError as e:
-        raise CheckpointError(f"{path}: {e}") from e
-    try:
-        agent.load_trainable_state_dict(payload["state_dict"])
-    except (KeyError, RuntimeError) as e:
-        raise CheckpointError(f"{path} does not match its recorded agent config: {e}") from e
-    return agent.to(device)
-
-
-def load_agent(
-    path: str | os.PathLike[str],
-    device: str | torch.device = "cpu",
-    weights: dict[str, str] | None = None,
-    clip_weights: str | None = None,
-) -> PickPlaceAgent:
-    """Rebuild an agent from a checkpoint written by ``save_checkpoint``.
-
-    Pretrained parts are reloaded from the sources the checkpoint records unless ``weights`` maps a
-    source field (e.g. ``{"clip_weights": "/other/path/RN50.pt"}``) to another one; a field the agent
-    does not have is ignored. ``clip_weights`` is shorthand for that field.
-    """
-    overrides = dict(weights or {})
-    if clip_weights is not None:
-        overrides["clip_weights"] = clip_weights
-    return agent_from_payload(read_checkpoint(path), path, device, overrides)
-
+from cliport.agents.registry import (
+    agent_class,
+    agent_from_payload,
+    agent_names,
+    config_classes,
+    load_agent,
+    make_agent,
+    make_config,
+    register_agent,
+)
 
 __all__ = [
     "AgentConfig",

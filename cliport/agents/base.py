@@ -19,9 +19,11 @@ from cliport.agents.config import AgentConfig
 from cliport.agents.decode import actions, decode_pick, decode_place, pose_pixels, pose_yaw
 from cliport.agents.device_options import DEVICE_OPTIONS, apply_layout_and_precision, option_applies
 from cliport.agents.loss import optimizer_step, pick_place_loss
+from cliport.agents.registry import agent_class, agent_from_payload
 from cliport.errors import CheckpointError, ConfigError
 from cliport.models.cuda_graphs import GraphedForward, GraphMemory
-from cliport.models.encoders import EncoderNet, FrozenEncoder
+from cliport.models.encoder_net import EncoderNet
+from cliport.models.encoders.base import FrozenEncoder
 from cliport.models.heads import PickHead, PlaceHead
 from cliport.models.preprocess import raw_input
 from cliport.utils.files import save_torch
@@ -37,6 +39,9 @@ class PickPlaceAgent(nn.Module):
     #: Set by ``@register_agent``: the registered name and config class.
     name: ClassVar[str] = ""
     config_class: ClassVar[type[AgentConfig]] = AgentConfig
+    #: Buffers of agents with ``center_sentences`` (see :meth:`fit_sentence_centering`).
+    sentence_mean: torch.Tensor
+    sentence_scale: torch.Tensor
     #: Whether the instruction changes what the agent does.
     uses_language: ClassVar[bool] = False
     #: Config fields naming pretrained weights (recorded in checkpoints, never saved in them).
@@ -120,7 +125,7 @@ class PickPlaceAgent(nn.Module):
         heads = (self.pick, self.place)
         apply_layout_and_precision(heads, self.encoder, self._use("channels_last"), self._use("bf16_clip"))
 
-    def _apply(self, fn, recurse: bool = True):  # type: ignore[no-untyped-def]
+    def _apply(self, fn, recurse: bool = True):  # type: ignore[no-untyped-def]  # torch's private hook, untyped
         # Every .to() / .cuda() / .float() re-allocates the parameters: recapture graphs, and bring the
         # layout and the frozen trunk's precision in line with the (possibly new) device.
         out = super()._apply(fn, recurse)
@@ -171,8 +176,14 @@ class PickPlaceAgent(nn.Module):
         recipe's): the fused kernel on CUDA and the CPU (see :meth:`optimize_for_device`), the foreach one elsewhere
         or when it is switched off.
         Adam is per parameter, so one optimiser over every net steps as the reference's one per net does."""
-        kernel = {"fused": True} if self._use("fused_adam") else {"foreach": True}
-        return torch.optim.Adam(self.trainable_parameters(), lr=self.config.lr, eps=eps, **kernel)
+        fused = self._use("fused_adam")
+        return torch.optim.Adam(
+            self.trainable_parameters(),
+            lr=self.config.lr,
+            eps=eps,
+            fused=fused or None,
+            foreach=None if fused else True,
+        )
 
     def set_encoder_norm_training(self, enabled: bool) -> int:
         """Whether training forwards run the frozen encoder's batch norms in training mode (each sample's own
@@ -192,7 +203,7 @@ class PickPlaceAgent(nn.Module):
         return self.pick(x, sentence), self.place(x, pick_pix, sentence)
 
     def action_targets(
-        self, pose0: torch.Tensor | np.ndarray, pose1: torch.Tensor | np.ndarray, hw: tuple[int, int]
+        self, pose0: torch.Tensor | np.ndarray, pose1: torch.Tensor | np.ndarray, hw: tuple[int, ...]
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Training targets of pick and place poses (B, 7) (xyz + quaternion xyzw, world frame of the image):
         pick pixel (B, 2), place pixel (B, 2) (row, col; int64, clamped to the (H, W) image) and the
@@ -266,7 +277,10 @@ class PickPlaceAgent(nn.Module):
     def _act_sentence(self, instructions: list[str | None]) -> torch.Tensor | None:
         if all(i is None for i in instructions):
             return self.sentence_features(None)
-        return self.sentence_features(list(instructions))  # type: ignore[arg-type]
+        texts = [i for i in instructions if i is not None]
+        if len(texts) != len(instructions):
+            raise ValueError("an act batch mixes instructions with None: give every observation one, or none")
+        return self.sentence_features(texts)
 
     @torch.no_grad()
     def act_batch(
@@ -301,7 +315,7 @@ class PickPlaceAgent(nn.Module):
         modules = self.named_modules(remove_duplicate=False)  # the shared encoder sits under several names
         return [name + "." for name, module in modules if isinstance(module, FrozenEncoder)]
 
-    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):  # type: ignore[no-untyped-def]
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):  # type: ignore[no-untyped-def]  # torch's hook
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
         if self.centers_sentences:
             self._sentences_fitted = bool(self.sentence_scale > 0)
@@ -379,8 +393,6 @@ class PickPlaceAgent(nn.Module):
         sources unless ``weights`` maps a source field to another (as :func:`cliport.agents.load_agent`).
         Called on an agent class (``TwoStreamAgent.from_pretrained``), the weights must be of that agent.
         """
-        from cliport.agents import agent_class, agent_from_payload
-
         path = pretrained_file(str(source), checkpoint)
         payload = read_payload(path)
         if not issubclass(agent_class(payload["agent"]), cls):  # before any pretrained part is loaded

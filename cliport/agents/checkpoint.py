@@ -4,7 +4,7 @@ and which file ``from_pretrained`` reads for a run folder, a pretrained folder o
 A checkpoint payload (see ``PickPlaceAgent.checkpoint_payload``) is a dict of ``format``, ``cliport_version``,
 ``agent``, ``config``, ``clip_weights``, ``weight_sources`` and the trainable ``state_dict``; a ``.pt``
 checkpoint is that dict saved with torch, a ``.safetensors`` weights file its tensors with the rest as string
-metadata. Nothing here imports an agent: building one from a payload is ``cliport.agents.agent_from_payload``.
+metadata. Nothing here imports an agent: building one from a payload is ``cliport.agents.registry.agent_from_payload``.
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ from typing import Any
 from cliport import __version__
 from cliport.errors import CheckpointError, ConfigError, RunDirError
 from cliport.utils.files import save_safetensors, write_json
+from cliport.utils.hub import resolve_run_dir
 
 #: 2 since the networks compute the reference CLIPort's functions (cliport 0.2.0); 1 before.
 CHECKPOINT_FORMAT = 2
@@ -122,13 +123,9 @@ def read_payload(path: str) -> dict[str, Any]:
 def pretrained_file(source: str, checkpoint: str | int | None = None) -> str:
     """The weights file ``PickPlaceAgent.from_pretrained`` reads for ``source`` and ``checkpoint``;
     RunDirError / ConfigError naming the problem."""
-    from cliport.utils.run_dir import LAST, RunDir
+    from cliport.utils.run_dir import RunDir
 
-    if source.startswith("hf://"):
-        # Hub runs are fetched by the deployment layer's resolver (the Hugging Face cache, offline aware).
-        from cliport.deploy.hub import resolve_run_dir
-
-        source = resolve_run_dir(source)
+    source = resolve_run_dir(source)  # hf://org/name[@revision] from the Hugging Face cache; a local path as given
     if os.path.isfile(source):
         if checkpoint is not None:
             raise ConfigError(f"checkpoint={checkpoint!r} needs a run folder, not the file {source}")
@@ -144,6 +141,6 @@ def pretrained_file(source: str, checkpoint: str | int | None = None) -> str:
             raise RunDirError(f"{source} holds no {PRETRAINED_WEIGHTS} and no scheduled checkpoints")
         return run.checkpoint(steps[-1])
     (step,) = run.resolve(str(checkpoint), run.best_step() if checkpoint == "best" else None, allow_all=False)
-    if step == LAST:
-        return run.checkpoint(LAST)
+    if isinstance(step, str):  # LAST
+        return run.checkpoint(step)
     return run.weights(step) if os.path.isfile(run.weights(step)) else run.checkpoint(step)

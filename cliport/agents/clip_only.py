@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-from cliport.agents import register_agent
 from cliport.agents.base import PickPlaceAgent
 from cliport.agents.config import CLIPConfig
-from cliport.models.clip_encoder import load_clip
-from cliport.models.encoders import FrozenEncoder
+from cliport.agents.registry import register_agent
+from cliport.models.encoders.base import FrozenEncoder
+from cliport.models.encoders.clip_encoder import load_clip
 from cliport.models.heads import PLACE_FEATURES, PickHead, PlaceHead
 from cliport.models.semantic import SemanticNet
 

@@ -87,6 +87,6 @@ class CLIPConfig(LanguageConfig):
     def validate(self) -> None:
         """As :meth:`AgentConfig.validate`, and the encoder name must be an open_clip model we can use."""
         super().validate()
-        from cliport.models.clip_registry import check_model_name
+        from cliport.models.encoders.clip_registry import check_model_name
 
         check_model_name(self.semantic_encoder)

@@ -19,7 +19,7 @@ from cliport.env.heightmap import BOUNDS, PIXEL_SIZE, pix_to_xyz
 from cliport.env.transforms import yaw_to_quat
 
 
-def pose_pixels(pose: torch.Tensor, hw: tuple[int, int]) -> torch.Tensor:
+def pose_pixels(pose: torch.Tensor, hw: tuple[int, ...]) -> torch.Tensor:
     """Poses (B, 7) (xyz + quaternion xyzw, world frame of the image) -> their pixels (B, 2) (row, col;
     int64, clamped to the (H, W) image)."""
     u = torch.round((pose[:, 1] - BOUNDS[1, 0]) / PIXEL_SIZE).clamp(0, hw[0] - 1)

@@ -16,9 +16,9 @@ Each applies on CUDA only, but ``fused_adam``, which applies on the CPU too.
 from __future__ import annotations
 
 import torch
-from torch import nn
 
-from cliport.models.encoders import FrozenEncoder
+from cliport.models.encoders.base import FrozenEncoder
+from cliport.models.heads import PickHead, PlaceHead
 from cliport.utils.device import bf16_native
 
 DEVICE_OPTIONS = ("channels_last", "bf16_clip", "fused_adam", "act_graphs")
@@ -36,7 +36,7 @@ def option_applies(requested: dict[str, bool], option: str, device: torch.device
 
 
 def apply_layout_and_precision(
-    heads: tuple[nn.Module, ...], encoder: FrozenEncoder | None, channels_last: bool, bf16: bool
+    heads: tuple[PickHead | PlaceHead, ...], encoder: FrozenEncoder | None, channels_last: bool, bf16: bool
 ) -> None:
     """Put the heads' weights and inputs in channels_last (or contiguous) memory format and the encoder's
     image trunk in bfloat16 (or float32, its weights restored)."""

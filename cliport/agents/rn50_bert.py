@@ -5,11 +5,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from cliport.agents import register_agent
 from cliport.agents.config import LanguageConfig
+from cliport.agents.registry import register_agent
 from cliport.agents.two_stream import TwoStreamAgent
-from cliport.models.encoders import FrozenEncoder
-from cliport.models.rn50_bert_encoder import load_rn50_bert
+from cliport.models.encoders.base import FrozenEncoder
+from cliport.models.encoders.rn50_bert_encoder import load_rn50_bert
 
 
 @dataclass
@@ -36,6 +36,6 @@ class RN50BERTAgent(TwoStreamAgent):
     weight_sources = ("rn50_weights", "bert_weights")
     published_columns = {"cliport_table1_test": "rn50_bert"}
 
-    def __init__(self, config: RN50BERTConfig, encoder: FrozenEncoder | None = None) -> None:  # type: ignore[override]
+    def __init__(self, config: RN50BERTConfig, encoder: FrozenEncoder | None = None) -> None:
         encoder = encoder if encoder is not None else load_rn50_bert(config.rn50_weights, config.bert_weights)
-        super().__init__(config, encoder)  # type: ignore[arg-type]
+        super().__init__(config, encoder)

@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from cliport.agents import register_agent
 from cliport.agents.base import PickPlaceAgent
 from cliport.agents.config import AgentConfig
+from cliport.agents.registry import register_agent
 from cliport.models.heads import PLACE_FEATURES, PickHead, PlaceHead
 from cliport.models.transporter import TransporterNet
 

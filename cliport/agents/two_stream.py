@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
-from cliport.agents import register_agent
+from typing import ClassVar
+
 from cliport.agents.base import PickPlaceAgent
-from cliport.agents.config import CLIPConfig
-from cliport.models.clip_encoder import load_clip
-from cliport.models.encoders import FrozenEncoder
+from cliport.agents.config import CLIPConfig, LanguageConfig
+from cliport.agents.registry import register_agent
+from cliport.models.encoders.base import FrozenEncoder
+from cliport.models.encoders.clip_encoder import load_clip
 from cliport.models.heads import PLACE_FEATURES, PickHead, PlaceHead
 from cliport.models.two_stream import TwoStreamNet
 
@@ -16,11 +18,14 @@ class TwoStreamAgent(PickPlaceAgent):
     """Pick net fuses its streams by addition, key and query nets by ReLU + 1x1 conv; one shared CLIP."""
 
     uses_language = True
-    weight_sources = ("clip_weights",)
+    weight_sources: ClassVar[tuple[str, ...]] = ("clip_weights",)
     published_columns = {"cliport_table6_val_ravens": "cliport_wo_lang", "cliport_table1_test": "cliport_single"}
 
-    def __init__(self, config: CLIPConfig, encoder: FrozenEncoder | None = None) -> None:
-        encoder = encoder if encoder is not None else load_clip(config.clip_weights, config.semantic_encoder)
+    def __init__(self, config: LanguageConfig, encoder: FrozenEncoder | None = None) -> None:
+        if encoder is None:
+            if not isinstance(config, CLIPConfig):
+                raise TypeError(f"{type(config).__name__} names no CLIP: pass the encoder")
+            encoder = load_clip(config.clip_weights, config.semantic_encoder)
         stats = isinstance(config, CLIPConfig) and config.per_net_clip_stats  # RN50-BERT has no CLIP
         pick = PickHead(TwoStreamNet(encoder, 1, config.width, per_net_clip_stats=stats), config.map_scale)
         place = PlaceHead(

@@ -1,7 +1,8 @@
-"""Shared pieces of the console scripts: one clear line and exit status 2 for the user's errors.
+"""Shared pieces of the console scripts: one clear line and exit status 2 for the user's errors, ``--version``.
 
 Only the project's own user-error exceptions (:class:`cliport.errors.UserError` and its subclasses) are
-turned into ``error: <message>``; anything else is a bug and keeps its traceback.
+turned into ``error: <message>``; anything else is a bug and keeps its traceback. Every parser built as a
+:class:`OneLineParser` answers ``--version`` with :func:`version_line`.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import tomllib
 from collections.abc import Callable
 from typing import Any, NoReturn
 
+from cliport import __version__
 from cliport.errors import ConfigError, UserError
 
 __all__ = [
@@ -22,6 +24,7 @@ __all__ = [
     "fail",
     "parse_key_values",
     "run_cli",
+    "version_line",
     "weight_overrides",
 ]
 
@@ -57,8 +60,18 @@ def parse_key_values(items: list[str], flag: str) -> dict[str, Any]:
     return out
 
 
+def version_line() -> str:
+    """What ``--version`` prints: ``cliport 0.3.0`` (the installed distribution's version)."""
+    return f"cliport {__version__}"
+
+
 class OneLineParser(argparse.ArgumentParser):
-    """An ArgumentParser whose errors are the project's one ``error:`` line (no usage block), exit 2."""
+    """An ArgumentParser whose errors are the project's one ``error:`` line (no usage block), exit 2, and that
+    answers ``--version`` (:func:`version_line` on stdout, exit 0)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.add_argument("--version", action="version", version=version_line(), help="print the version and exit")
 
     def error(self, message: str) -> NoReturn:
         fail(f"{self.prog}: {message} (see {self.prog} --help)")

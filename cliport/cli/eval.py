@@ -48,7 +48,7 @@ def main(argv: list[str] | None = None) -> None:
     from cliport import tasks
     from cliport.agents import load_agent
     from cliport.data.seeds import episode_seeds
-    from cliport.deploy.hub import HF_PREFIX, hub_eval_dir, resolve_run_dir
+    from cliport.deploy.hub import hub_eval_dir
     from cliport.env.environment import RENDERER_KINDS, EnvConfig
     from cliport.evaluation.engine import EvalEngine, resolve_workers
     from cliport.evaluation.evaluate import EvalConfig, evaluate
@@ -56,6 +56,7 @@ def main(argv: list[str] | None = None) -> None:
     from cliport.utils.config import given_flags, load
     from cliport.utils.device import resolve_device
     from cliport.utils.files import read_json, write_json
+    from cliport.utils.hub import HF_PREFIX, resolve_run_dir
     from cliport.utils.run_dir import RunDir
     from cliport.utils.tensorboard import log_result, summary_writer
 

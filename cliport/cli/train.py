@@ -10,10 +10,13 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from cliport.cli.common import OneLineParser, parse_key_values, run_cli
 from cliport.errors import ConfigError, RunDirError
+
+if TYPE_CHECKING:
+    from cliport.train.config import TrainConfig
 
 
 def _parser() -> tuple[argparse.ArgumentParser, list[str]]:
@@ -44,7 +47,7 @@ def _parser() -> tuple[argparse.ArgumentParser, list[str]]:
     return parser, dests
 
 
-def config_from_args(args: argparse.Namespace, dests: list[str]):
+def config_from_args(args: argparse.Namespace, dests: list[str]) -> TrainConfig:
     """The resolved TrainConfig: defaults (or the resumed run's saved config) updated with the given flags."""
     from cliport.train.config import TrainConfig
     from cliport.train.trainer import load_run_config

@@ -17,7 +17,7 @@ ANGLE_STD = math.radians(60)
 SHIFT_STD = 26.7  # pixels: min(320, 160) / 6
 
 #: ``half_size``: (W / 2, H / 2), the reference CLIPort's and Ravens' pivot; ``centre``: ((W - 1) / 2, (H - 1) / 2),
-#: the image's geometric centre in pixel-centre coordinates (this project before cliport 0.3).
+#: the image's geometric centre in pixel-centre coordinates (cliport 0.2's, kept by the legacy recipe).
 PIVOTS = ("half_size", "centre")
 #: ``linear``: the reference CLIPort's warp (bilinear, colours truncated to integers); ``nearest``: Ravens'.
 INTERPOLATIONS = ("linear", "nearest")

@@ -93,7 +93,7 @@ class DemoDataset(Dataset):
             self.files += [(name, episode_path(folder, s)) for s in seeds]
         self.index: list[tuple[int, int, int]] = []  # (episode, step, instruction)
         self._instructions: set[str] = set()
-        for e, (_, path) in enumerate(self.files):
+        for episode, (_, path) in enumerate(self.files):
             table = _instruction_table(path)
             if every_instruction and any(len(row) == 1 for row in table):
                 raise DatasetError(
@@ -102,7 +102,7 @@ class DemoDataset(Dataset):
                 )
             for t, row in enumerate(table):
                 chosen = row if every_instruction else row[:1]
-                self.index += [(e, t, k) for k in range(len(chosen))]
+                self.index += [(episode, t, k) for k in range(len(chosen))]
                 self._instructions.update(lang for lang in chosen if lang)
         self._cache: OrderedDict[int, EpisodeData] = OrderedDict()
         self._rng: np.random.Generator | None = None

@@ -91,7 +91,7 @@ def save_episode(path: str, steps: list[dict[str, Any]], meta: dict[str, Any], r
     ``steps`` are rollout steps: dicts with ``obs`` (``color``, ``height``[, ``cameras``]),
     ``action`` (``pose0``, ``pose1``), ``reward`` and ``lang_goal``.
     """
-    arrays: dict[str, np.ndarray] = {
+    arrays: dict[str, Any] = {
         "color": np.stack([s["obs"]["color"] for s in steps]).astype(np.uint8),
         "height": np.stack([np.round(np.clip(s["obs"]["height"], 0, None) / HEIGHT_UNIT) for s in steps]).astype(
             np.uint16

@@ -15,6 +15,7 @@ import json
 import multiprocessing as mp
 import os
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
 
@@ -178,7 +179,7 @@ def generate(
     if config.every_instruction:
         meta["every_instruction"] = True
 
-    def seed_stream():
+    def seed_stream() -> Iterator[int]:
         i = index
         while True:
             yield episode_seeds(mode, 1, i)[0]
@@ -229,10 +230,10 @@ def generate(
     init_args = (task, mode, config.camera_scale, config.raw_images, config.every_instruction)
     try:
         if target > 0 and config.workers == 1:
-            while saved_before + n_saved < target and (seed := next_seed()) is not None:
+            while saved_before + n_saved < target and (next_one := next_seed()) is not None:
                 if _ENV is None:  # a complete folder starts no simulator
                     init_worker(*init_args)
-                record(_worker_run(seed, episode_path(folder, seed), meta, config.raw_images))
+                record(_worker_run(next_one, episode_path(folder, next_one), meta, config.raw_images))
         elif target > 0:
             ctx = mp.get_context("spawn")
             with cf.ProcessPoolExecutor(
@@ -246,11 +247,13 @@ def generate(
                         and saved_before + n_saved + len(pending) < target
                         and len(pending) < config.workers
                     ):
-                        seed = next_seed()
-                        if seed is None:
+                        next_one = next_seed()
+                        if next_one is None:
                             exhausted = True
                             break
-                        pending.add(pool.submit(_worker_run, seed, episode_path(folder, seed), meta, config.raw_images))
+                        pending.add(
+                            pool.submit(_worker_run, next_one, episode_path(folder, next_one), meta, config.raw_images)
+                        )
                     if not pending:
                         break
                     # Bounded: a Ctrl-C landing just before an unbounded wait would only be seen when a

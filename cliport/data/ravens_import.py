@@ -128,7 +128,9 @@ def find_ravens_episodes(src: str, mode: str) -> list[RavensEpisode]:
             )
     if not names["action"]:
         raise DemoImportError(f"{src}/action holds no episode files ({{index:06d}}-{{seed}}.pkl)")
-    episodes, by_seed, by_index = [], {}, {}
+    episodes: list[RavensEpisode] = []
+    by_seed: dict[int, str] = {}
+    by_index: dict[int, str] = {}
     for name in sorted(names["action"]):
         m = EPISODE_FILE.fullmatch(name)
         assert m is not None
@@ -216,7 +218,7 @@ def read_episode(episode: RavensEpisode) -> RavensData:
             raise DemoImportError(f"{at}: must be a dict with pose0 and pose1, got {type(action).__name__}")
         poses.append((_pose(action["pose0"], f"{at}: pose0"), _pose(action["pose1"], f"{at}: pose1")))
 
-    def entries(field: str) -> list[Any]:
+    def entries(field: str) -> list[Any] | np.ndarray:
         value = load_pickle(paths[field])
         if not isinstance(value, list | tuple | np.ndarray) or len(value) != n:
             got = f"{len(value)} entries" if isinstance(value, list | tuple | np.ndarray) else type(value).__name__

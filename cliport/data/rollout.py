@@ -5,7 +5,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
 from cliport.env.environment import Environment
 
@@ -35,9 +35,25 @@ def oracle_policy(env: Environment) -> Policy:
     """The task's scripted expert as a policy."""
 
     def act(obs: dict[str, Any], info: dict[str, Any]) -> dict[str, Any] | None:
-        return env.task.oracle_act(obs)  # type: ignore[union-attr]
+        return _task_of(env).oracle_act(obs)
 
     return act
+
+
+@runtime_checkable
+class ExpertTask(Protocol):
+    """What demonstrations need of a task beyond the environment's :class:`~cliport.env.environment.Task`: its
+    scripted expert and, for ``variants``, the scene's other instructions (``cliport.tasks.base.Task`` has both)."""
+
+    def oracle_act(self, obs: dict[str, Any] | None = None) -> dict[str, Any] | None: ...
+
+    def instruction_variants(self, obs: dict[str, Any] | None = None) -> list[tuple[str, dict[str, Any]]]: ...
+
+
+def _task_of(env: Environment) -> ExpertTask:
+    if not isinstance(env.task, ExpertTask):
+        raise ValueError("the environment has no task with an oracle; call env.set_task(task) first")
+    return env.task
 
 
 def run_episode(env: Environment, seed: int, policy: Policy, record: bool = False, variants: bool = False) -> Episode:
@@ -56,7 +72,7 @@ def run_episode(env: Environment, seed: int, policy: Policy, record: bool = Fals
         if action is None:
             break
         lang_goal = info.get("lang_goal")
-        others = task.instruction_variants(obs) if record and variants else None
+        others = _task_of(env).instruction_variants(obs) if record and variants else None
         next_obs, reward, done, info = env.step(action)
         if record:
             episode.steps.append({"obs": obs, "action": action, "reward": reward, "lang_goal": lang_goal})

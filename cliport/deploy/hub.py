@@ -3,8 +3,9 @@
 :func:`build_hub_folder` assembles what ``cliport-push`` uploads (config.json, ``model.safetensors``: the
 pushed checkpoint's weights without pickle, val.json, the chosen checkpoints under ``checkpoints/``, the
 evaluation JSONs under ``eval/`` and a ``README.md`` model card);
-:func:`resolve_run_dir` turns ``hf://org/name[@revision]`` into a local folder from the Hugging Face cache
-(downloading when online), so every command that reads a run accepts either.
+:func:`~cliport.utils.hub.resolve_run_dir` (in :mod:`cliport.utils.hub`, re-exported here) turns
+``hf://org/name[@revision]`` into a local folder from the Hugging Face cache (downloading when online), so every
+command that reads a run accepts either.
 """
 
 from __future__ import annotations
@@ -12,72 +13,17 @@ from __future__ import annotations
 import glob
 import json
 import os
-import re
 import shutil
 from typing import Any
 
-from cliport.errors import ConfigError, RunDirError, UserError
+from cliport.errors import HubError, RunDirError
 from cliport.utils import run_dir as layout
 from cliport.utils.files import read_json
 
-HF_PREFIX = "hf://"
-_REPO_ID = re.compile(r"[A-Za-z0-9][\w.-]*/[A-Za-z0-9][\w.-]*")
+# Resolving hf:// names is the utilities' (every layer reads runs); these names stay importable from here.
+from cliport.utils.hub import HF_PREFIX, one_line, parse_hub_ref, resolve_run_dir
+
 _TRAINING_STATE = ("trainer",)  # what last.pt holds beyond the agent: optimiser, step, RNG (not pushed)
-
-
-class HubError(UserError, OSError):
-    """The Hub could not be reached or refused (no network, no token, no such repo); one line."""
-
-
-def parse_hub_ref(text: str) -> tuple[str, str | None]:
-    """``hf://org/name[@revision]`` -> (``org/name``, revision or None)."""
-    ref = text[len(HF_PREFIX) :] if text.startswith(HF_PREFIX) else text
-    repo_id, _, revision = ref.partition("@")
-    repo_id = repo_id.strip("/")
-    if not _REPO_ID.fullmatch(repo_id) or (revision == "" and "@" in ref):
-        raise ConfigError(f"a Hub run must look like hf://org/name or hf://org/name@revision, got {text!r}")
-    return repo_id, revision or None
-
-
-def _offline() -> bool:
-    from huggingface_hub import constants
-
-    value = os.environ.get("HF_HUB_OFFLINE", "")
-    return value.upper() in {"1", "ON", "YES", "TRUE"} or bool(constants.HF_HUB_OFFLINE)
-
-
-def resolve_run_dir(text: str) -> str:
-    """A local run folder for ``--run-dir``: a local path as given, or ``hf://org/name[@revision]`` fetched
-    with ``huggingface_hub.snapshot_download`` into the Hugging Face cache (cache only when HF_HUB_OFFLINE is
-    set). One-line errors (RunDirError / HubError) when it cannot be had."""
-    if not str(text).startswith(HF_PREFIX):
-        return text
-    repo_id, revision = parse_hub_ref(text)
-    from huggingface_hub import snapshot_download
-    from huggingface_hub.errors import LocalEntryNotFoundError, RepositoryNotFoundError, RevisionNotFoundError
-
-    offline = _offline()
-    rev = f" --revision {revision}" if revision else ""
-    try:
-        path = snapshot_download(repo_id, revision=revision, local_files_only=offline)
-    except LocalEntryNotFoundError:
-        why = "HF_HUB_OFFLINE is set" if offline else "the Hub cannot be reached"
-        raise RunDirError(
-            f"{text} is not in the local Hugging Face cache and {why}: pre-fill the cache on a machine with "
-            f"network (same HF_HOME) with `hf download {repo_id}{rev}` (`huggingface-cli download "
-            f"{repo_id}{rev}` with huggingface_hub < 1.0), or pass a local run folder to --run-dir"
-        ) from None
-    except RevisionNotFoundError:
-        raise RunDirError(f"{text}: the repo {repo_id} has no revision {revision!r}") from None
-    except RepositoryNotFoundError:
-        raise RunDirError(
-            f"{text}: no repo {repo_id} on the Hugging Face Hub (or it is private: log in with `hf auth login`)"
-        ) from None
-    except (OSError, ValueError) as e:
-        raise HubError(f"could not fetch {text}: {_one_line(e)}") from None
-    if not layout.RunDir(path).is_run():
-        raise RunDirError(f"{text} holds no {layout.CONFIG}: not a cliport run")
-    return path
 
 
 def hub_eval_dir(text: str) -> str:
@@ -85,11 +31,6 @@ def hub_eval_dir(text: str) -> str:
     folder (never inside the read-only Hugging Face cache)."""
     repo_id, revision = parse_hub_ref(text)
     return os.path.join("eval", repo_id.replace("/", "--") + (f"@{revision}" if revision else ""))
-
-
-def _one_line(error: BaseException) -> str:
-    text = " ".join(str(error).split())
-    return f"{type(error).__name__}: {text[:300]}"
 
 
 def _chosen_checkpoints(run: layout.RunDir, which: str) -> list[int | str]:
@@ -115,10 +56,10 @@ def _copy_checkpoint(src: str, dst: str) -> dict[str, Any]:
 def _main_checkpoint(chosen: list[int | str], best: int | None) -> int | str:
     """The checkpoint whose weights become the repo's ``model.safetensors``: the val-selected one where it is
     pushed, else the newest scheduled one, else ``last``."""
-    if best in chosen:
-        return best  # type: ignore[return-value]
-    steps = [s for s in chosen if s != layout.LAST]
-    return max(steps) if steps else chosen[0]  # type: ignore[type-var]
+    if best is not None and best in chosen:
+        return best
+    steps = [s for s in chosen if isinstance(s, int)]  # every one but LAST
+    return max(steps) if steps else chosen[0]
 
 
 def build_hub_folder(run_dir: str, out: str, repo_id: str, which: str = "best") -> str:
@@ -142,7 +83,7 @@ def build_hub_folder(run_dir: str, out: str, repo_id: str, which: str = "best") 
     payloads = {step: _copy_checkpoint(run.checkpoint(step), dest.checkpoint(step)) for step in chosen}
     main = _main_checkpoint(chosen, run.best_step())
     payload = payloads[main]
-    step = main if main != layout.LAST else payload.get("trainer", {}).get("step")
+    step = main if isinstance(main, int) else payload.get("trainer", {}).get("step")
     save_weights(payload, dest.model_weights, step=step)  # what from_pretrained("hf://...") reads
     evals = sorted(glob.glob(os.path.join(run.eval_dir, "*.json")))
     if evals:
@@ -272,7 +213,7 @@ def upload(folder: str, repo_id: str, private: bool = False) -> str:
         api.create_repo(repo_id, private=private, exist_ok=True)
         info = api.upload_folder(folder_path=folder, repo_id=repo_id, commit_message="cliport-push")
     except Exception as e:  # network, token, permissions: all reported as one line
-        raise HubError(f"could not push to the Hugging Face Hub repo {repo_id}: {_one_line(e)}") from None
+        raise HubError(f"could not push to the Hugging Face Hub repo {repo_id}: {one_line(e)}") from None
     return str(getattr(info, "commit_url", info))
 
 

@@ -17,7 +17,7 @@ from cliport.errors import ConfigError
 def resolve_checkpoint(run_dir: str, which: str = "best") -> tuple[str, int | str]:
     """The checkpoint file of a run (a folder or ``hf://org/name[@revision]``) that ``which`` names (best by
     val.json, last, or a saved step) and its step (or "last")."""
-    from cliport.deploy.hub import resolve_run_dir
+    from cliport.utils.hub import resolve_run_dir
     from cliport.utils.run_dir import RunDir
 
     run = RunDir(resolve_run_dir(run_dir))

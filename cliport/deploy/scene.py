@@ -98,8 +98,8 @@ def parse_camera(data: Any, index: int, source: str = "cameras.json") -> CameraC
     return CameraConfig(
         image_size=(int(size[0]), int(size[1])),
         intrinsics=tuple(float(c) for c in k.ravel()),
-        position=position,  # type: ignore[arg-type]
-        rotation=tuple(float(c) for c in rotation / norm),  # type: ignore[arg-type]
+        position=position,  # type: ignore[arg-type]  # three floats: checked above
+        rotation=tuple(float(c) for c in rotation / norm),  # type: ignore[arg-type]  # tuple() of an iterable has no length in its type
         **out,
     )
 

@@ -59,7 +59,7 @@ def sweep_stale(directory: str | None = None) -> list[str]:
     Returns the removed paths. A pid reused by a live process keeps its folder until that one ends.
     """
     directory = directory or tempfile.gettempdir()
-    removed = []
+    removed: list[str] = []
     try:
         entries = list(os.scandir(directory))
     except OSError:

@@ -65,7 +65,7 @@ def realsense_d415() -> list[CameraConfig]:
 
 
 def _bullet_quat(rpy: tuple[float, float, float]) -> tuple[float, float, float, float]:
-    return tuple(float(c) for c in p.getQuaternionFromEuler(rpy))  # type: ignore[return-value]
+    return tuple(float(c) for c in p.getQuaternionFromEuler(rpy))  # type: ignore[return-value]  # tuple() of an iterable has no length in its type
 
 
 def oracle_camera() -> CameraConfig:

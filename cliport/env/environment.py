@@ -223,23 +223,27 @@ class Environment:
         ``info`` holds ``lang_goal`` (the task's current instruction, or None), ``steps``,
         ``grasped``, ``reached`` (the motion finished within its step budgets) and the task's own info.
         """
-        if self.robot is None:
+        if self.robot is None or self.ee is None:
             raise RuntimeError("call reset(seed) before step()")
         motion = {"grasped": False, "reached": True}
         if action is not None:
             pose0, pose1 = validate_action(action, self.bounds)
             primitive = self.task.primitive if self.task is not None else "pick_place"
             if primitive == "push":
-                settings = self.task.primitive_settings if self.task is not None else PushSettings()
-                motion = push(self.robot, pose0, pose1, settings)
+                push_settings = self.task.primitive_settings if self.task is not None else PushSettings()
+                if not isinstance(push_settings, PushSettings):
+                    raise TypeError(f"a push task needs PushSettings, not {type(push_settings).__name__}")
+                motion = push(self.robot, pose0, pose1, push_settings)
             else:
                 settings = self.task.primitive_settings if self.task is not None else PickPlaceSettings()
+                if not isinstance(settings, PickPlaceSettings):
+                    raise TypeError(f"a pick-and-place task needs PickPlaceSettings, not {type(settings).__name__}")
                 motion = pick_place(self.robot, self.ee, pose0, pose1, settings)
             self.robot.movej(self.robot.home, budget=2400)
         self.settle()
         self.capture_frame()
         self.steps += 1
-        reward, task_info = (0.0, {})
+        reward, task_info = 0.0, dict[str, Any]()
         done = False
         if self.task is not None:
             reward, task_info = self.task.reward()
@@ -365,7 +369,7 @@ def _as_pose(value: Any, name: str) -> Pose:
     norm = float(np.linalg.norm(quat))
     if norm < 1e-6:
         raise ActionError(f"{name} quaternion has zero length")
-    return tuple(pos.tolist()), tuple((quat / norm).tolist())  # type: ignore[return-value]
+    return tuple(pos.tolist()), tuple((quat / norm).tolist())
 
 
 def validate_action(action: Any, bounds: np.ndarray, margin: float = 0.01) -> tuple[Pose, Pose]:

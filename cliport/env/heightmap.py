@@ -119,8 +119,7 @@ def project_to_heightmap(
     height[cell] = kept[:, 2] - b[2, 0]
     color[cell] = col[index]
     seen[cell] = True
-    height, color, seen = height.reshape(rows, cols), color.reshape(rows, cols, channels), seen.reshape(rows, cols)
-    return height, color, seen
+    return height.reshape(rows, cols), color.reshape(rows, cols, channels), seen.reshape(rows, cols)
 
 
 def fuse_heightmaps(heights: list[np.ndarray], colors: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:

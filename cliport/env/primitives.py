@@ -6,6 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cliport.env.grippers import Spatula, Suction
+from cliport.env.robot import UR5
 from cliport.env.transforms import Pose, multiply, yaw_to_quat
 
 
@@ -19,7 +21,9 @@ class PickPlaceSettings:
     max_descent: float = 0.4  # give up looking for contact after this much descent (m)
 
 
-def _descend_until_contact(robot, ee, start: Pose, speed: float, settings: PickPlaceSettings) -> bool:
+def _descend_until_contact(
+    robot: UR5, ee: Suction | Spatula, start: Pose, speed: float, settings: PickPlaceSettings
+) -> bool:
     """Lower the tool from ``start`` in small moves until the end effector touches something."""
     target = start
     delta = ((0.0, 0.0, -settings.descend_step), (0.0, 0.0, 0.0, 1.0))
@@ -32,7 +36,9 @@ def _descend_until_contact(robot, ee, start: Pose, speed: float, settings: PickP
     return ee.detect_contact()
 
 
-def pick_place(robot, ee, pose0: Pose, pose1: Pose, settings: PickPlaceSettings = PickPlaceSettings()) -> dict:
+def pick_place(
+    robot: UR5, ee: Suction | Spatula, pose0: Pose, pose1: Pose, settings: PickPlaceSettings = PickPlaceSettings()
+) -> dict:
     """Pick at ``pose0`` with suction and place at ``pose1``.
 
     The tool comes down from ``approach_height`` above the pick, lifts the object to ``height``,
@@ -69,7 +75,7 @@ class PushSettings:
     stride: float = 0.01  # distance per move while pushing (m)
 
 
-def push(robot, pose0: Pose, pose1: Pose, settings: PushSettings = PushSettings()) -> dict:
+def push(robot: UR5, pose0: Pose, pose1: Pose, settings: PushSettings = PushSettings()) -> dict:
     """Push with the spatula from ``pose0`` to ``pose1`` (only their xy matter).
 
     The blade faces the push direction d (yaw = atan2(d)), starts 2 cm behind the start point and

@@ -69,12 +69,12 @@ class UR5:
     def tool_pose(self) -> Pose:
         """World pose of the tool frame (the point that IK targets)."""
         s = p.getLinkState(self.body, self.tool_frame_link, computeForwardKinematics=True, physicsClientId=self.client)
-        return tuple(s[4]), tuple(s[5])  # type: ignore[return-value]
+        return tuple(s[4]), tuple(s[5])
 
     def tip_pose(self) -> Pose:
         """World pose of the tool tip: 0.12 m past the flange, the contact point."""
         s = p.getLinkState(self.body, self.tip_link, computeForwardKinematics=True, physicsClientId=self.client)
-        return tuple(s[4]), tuple(s[5])  # type: ignore[return-value]
+        return tuple(s[4]), tuple(s[5])
 
     def solve_ik(self, pose: Pose, refinements: int = 5, tolerance: float = 2e-4) -> np.ndarray:
         """Joint angles that put the tool tip at ``pose`` (solved once per move).

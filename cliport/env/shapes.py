@@ -16,7 +16,8 @@ Color = tuple[float, float, float]
 
 def _rgba(color: Color, alpha: float = 1.0) -> list[float]:
     if max(color) > 1.0:  # 0-255 colours
-        color = tuple(c / 255.0 for c in color)  # type: ignore[assignment]
+        r, g, b = color
+        color = (r / 255.0, g / 255.0, b / 255.0)
     return [*color, alpha]
 
 
@@ -199,10 +200,10 @@ def _triangulate(polygon: np.ndarray) -> list[tuple[int, int, int]]:
     if area < 0:
         idx.reverse()
 
-    def cross(o, a, b):
+    def cross(o: tuple[float, ...], a: tuple[float, ...], b: tuple[float, ...]) -> float:
         return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
 
-    def inside(pt, a, b, c):
+    def inside(pt: tuple[float, ...], a: tuple[float, ...], b: tuple[float, ...], c: tuple[float, ...]) -> bool:
         return cross(a, b, pt) >= 0 and cross(b, c, pt) >= 0 and cross(c, a, pt) >= 0
 
     triangles = []

@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
 Pose = tuple[tuple[float, float, float], tuple[float, float, float, float]]
 
 
-def quat_to_matrix(q: np.ndarray | tuple[float, ...]) -> np.ndarray:
+def quat_to_matrix(q: np.ndarray | Sequence[float]) -> np.ndarray:
     """3x3 rotation matrix of a quaternion (x, y, z, w) (normalised here).
 
     Computed as Bullet's ``btMatrix3x3::setRotation`` computes it, so it equals pybullet's
@@ -49,7 +50,7 @@ def matrix_to_quat(m: np.ndarray) -> tuple[float, float, float, float]:
         w, x, y, z = (m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s
     q = np.array([x, y, z, w])
     q = q / np.linalg.norm(q)
-    return tuple(float(c) for c in q)  # type: ignore[return-value]
+    return tuple(float(c) for c in q)  # type: ignore[return-value]  # tuple() of an iterable has no length in its type
 
 
 def euler_to_quat(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
@@ -93,14 +94,14 @@ def multiply(a: Pose, b: Pose) -> Pose:
     ra = quat_to_matrix(a[1])
     pos = np.asarray(a[0], dtype=float) + ra @ np.asarray(b[0], dtype=float)
     rot = ra @ quat_to_matrix(b[1])
-    return tuple(float(c) for c in pos), matrix_to_quat(rot)  # type: ignore[return-value]
+    return tuple(float(c) for c in pos), matrix_to_quat(rot)  # type: ignore[return-value]  # tuple() of an iterable has no length in its type
 
 
 def invert(a: Pose) -> Pose:
     """Inverse of a pose."""
     r = quat_to_matrix(a[1]).T
     pos = -r @ np.asarray(a[0], dtype=float)
-    return tuple(float(c) for c in pos), matrix_to_quat(r)  # type: ignore[return-value]
+    return tuple(float(c) for c in pos), matrix_to_quat(r)  # type: ignore[return-value]  # tuple() of an iterable has no length in its type
 
 
 def apply(pose: Pose, point: np.ndarray | tuple[float, ...]) -> np.ndarray:

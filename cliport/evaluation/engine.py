@@ -163,8 +163,8 @@ class EvalEngine:
                     if worker.ready and worker.seed is None and todo:
                         worker.seed = todo.popleft()
                         first_start = first_start or time.perf_counter()
-                        message = ("start", worker.seed, oracle, video_path(worker.seed), video_fps)
-                        worker.send(message, pool.timeout(oracle, worker))
+                        start_message = ("start", worker.seed, oracle, video_path(worker.seed), video_fps)
+                        worker.send(start_message, pool.timeout(oracle, worker))
                 busy = [w for w in self.workers if w.seed is not None or not w.ready]
                 waiting: list[tuple[Worker, int, dict[str, Any], str | None]] = []
                 for worker, message in pool.receive(busy):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import statistics
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -58,7 +59,11 @@ def success_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, fl
     return 100 * max(centre - half, 0.0), 100 * min(centre + half, 1.0)
 
 
-def agent_policy(agent: Any, lang: str | None = None, on_act=None):
+def agent_policy(
+    agent: Any,
+    lang: str | None = None,
+    on_act: Callable[[dict[str, Any], dict[str, Any], str | None], None] | None = None,
+) -> Callable[[dict[str, Any], dict[str, Any]], dict[str, Any]]:
     """Policy calling ``agent.act`` with the task's current instruction (or ``lang`` when given)."""
 
     def act(obs: dict[str, Any], info: dict[str, Any]) -> dict[str, Any]:

@@ -39,7 +39,7 @@ def run_instruction(
     stem = f"{task_name}-seed{seed}-{instruction_slug(lang)}"
     panels: list[str] = []
 
-    def on_act(obs, result, instruction):
+    def on_act(obs: dict[str, Any], result: dict[str, Any], instruction: str | None) -> None:
         path = os.path.join(out_dir, f"{stem}-step{len(panels) + 1}-heatmaps.png")
         save_png(path, action_panel(obs, result, instruction))
         panels.append(path)

@@ -12,8 +12,9 @@ import numpy as np
 def heatmap_overlay(color: np.ndarray, heatmap: np.ndarray, alpha: float = 0.55) -> np.ndarray:
     """(H, W, 3) uint8 observation blended with a (H, W) heatmap (normalised to its max, jet colours)."""
     norm = heatmap / max(float(heatmap.max()), 1e-12)
-    colored = cv2.applyColorMap(np.uint8(np.clip(norm, 0, 1) * 255), cv2.COLORMAP_JET)[..., ::-1]
-    return np.uint8(np.clip((1 - alpha) * color.astype(np.float32) + alpha * colored.astype(np.float32), 0, 255))
+    colored = cv2.applyColorMap((np.clip(norm, 0, 1) * 255).astype(np.uint8), cv2.COLORMAP_JET)[..., ::-1]
+    blend = (1 - alpha) * color.astype(np.float32) + alpha * colored.astype(np.float32)
+    return np.clip(blend, 0, 255).astype(np.uint8)
 
 
 def fill_empty_cells(color: np.ndarray) -> np.ndarray:
@@ -68,7 +69,7 @@ def save_video(path: str, frames: list[np.ndarray], fps: int = 20) -> None:
         images[0].save(path, save_all=True, append_images=images[1:], duration=int(1000 / fps), loop=0)
     elif path.endswith(".mp4"):
         h, w = frames[0].shape[:2]
-        writer = cv2.VideoWriter(path, cv2.VideoWriter_fourcc(*"mp4v"), fps, (w, h))
+        writer = cv2.VideoWriter(path, cv2.VideoWriter.fourcc(*"mp4v"), fps, (w, h))
         for f in frames:
             writer.write(f[..., ::-1])
         writer.release()

@@ -107,8 +107,9 @@ def close_all(workers: list[Worker], grace: float | None = None) -> None:
         alive = [w for w in remote if w.process.is_alive()]
         if not alive:
             break
-        for worker in alive if stop else ():
-            getattr(worker.process, stop)()
+        if stop is not None:
+            for worker in alive:
+                getattr(worker.process, stop)()
         end = time.monotonic() + limit
         for worker in alive:
             worker.process.join(timeout=max(0.0, end - time.monotonic()))

@@ -3,7 +3,7 @@
 Residual bottlenecks without batch norm or conv biases (the reference trains with ``batchnorm: False``),
 bilinear x2 up-sampling with ``align_corners=True`` (``nn.UpsamplingBilinear2d``), the U-Net up-block
 with its batch norms, and the per-sample batch norm those batch norms need (see
-:class:`PerSampleBatchNorm2d`).
+:class:`PerSampleBatchNorm2d`). The stream fusions are :mod:`cliport.models.fusion`'s.
 """
 
 from __future__ import annotations
@@ -135,13 +135,14 @@ class PerSampleBatchNorm2d(nn.BatchNorm2d):
         groups = n // size
         # Group g's images become the batch of one channel block of a single batch_norm call.
         grouped = x.reshape(groups, size, c, h, w).transpose(0, 1).reshape(size, groups * c, h, w)
-        update = self.training and self.running_mean is not None
-        mean = self.running_mean.repeat(groups) if update else None
-        var = self.running_var.repeat(groups) if update else None
+        running = (self.running_mean, self.running_var) if self.training else (None, None)
+        mean = running[0].repeat(groups) if running[0] is not None else None
+        var = running[1].repeat(groups) if running[1] is not None else None
+        momentum = self._momentum() if mean is not None else 0.0  # read only when running statistics update
         out = F.batch_norm(
-            grouped, mean, var, self.weight.repeat(groups), self.bias.repeat(groups), True, self.momentum, self.eps
+            grouped, mean, var, self.weight.repeat(groups), self.bias.repeat(groups), True, momentum, self.eps
         )
-        if update:
+        if mean is not None and var is not None:
             self._update_running(mean, var, groups)
         return out.reshape(size, groups, c, h, w).transpose(0, 1).reshape(n, c, h, w)
 
@@ -149,12 +150,19 @@ class PerSampleBatchNorm2d(nn.BatchNorm2d):
     def _update_running(self, mean: torch.Tensor, var: torch.Tensor, groups: int) -> None:
         """Turns the groups' parallel updates r_g = (1 - m) r + m s_g into the sequential result
         (1 - m)^G r + sum_g (1 - m)^(G - 1 - g) m s_g of G batch-1 steps."""
-        keep = 1.0 - self.momentum
+        keep = 1.0 - self._momentum()
         weights = keep ** torch.arange(groups - 1, -1, -1, dtype=mean.dtype, device=mean.device)
         for running, parallel in ((self.running_mean, mean), (self.running_var, var)):
+            assert running is not None  # _update_running is only called with running statistics
             steps = parallel.view(groups, -1) - keep * running  # m * s_g
             running.mul_(keep**groups).add_((weights[:, None] * steps).sum(0))
-        self.num_batches_tracked.add_(groups)
+        if self.num_batches_tracked is not None:
+            self.num_batches_tracked.add_(groups)
+
+    def _momentum(self) -> float:
+        if self.momentum is None:  # a cumulative average has no per-group weights to fold
+            raise ValueError("PerSampleBatchNorm2d needs a momentum (momentum=None is not supported)")
+        return self.momentum
 
 
 class DoubleConv(nn.Sequential):
@@ -186,39 +194,6 @@ class UpBlock(nn.Module):
         if dh or dw:
             x = F.pad(x, [dw // 2, dw - dw // 2, dh // 2, dh - dh // 2])
         return self.conv(torch.cat([skip, x], dim=1))
-
-
-class LateralFusion(nn.Module):
-    """concat(semantic, spatial lateral) -> ReLU -> 1x1 conv (no bias) to ``out_ch`` channels: the reference's
-    ``FusionConvLat``."""
-
-    def __init__(self, in_ch: int, out_ch: int) -> None:
-        super().__init__()
-        self.conv = nn.Conv2d(in_ch, out_ch, 1, bias=False)
-
-    def forward(self, x: torch.Tensor, lateral: torch.Tensor) -> torch.Tensor:
-        """(N, c, H, W), (N, in_ch - c, H, W) -> (N, out_ch, H, W)."""
-        return self.conv(F.relu(torch.cat([x, lateral], dim=1)))
-
-
-class AddFusion(nn.Module):
-    """The two streams' outputs summed: the reference's ``FusionAdd`` (fusion type "add", its pick nets)."""
-
-    def forward(self, spatial: torch.Tensor, semantic: torch.Tensor) -> torch.Tensor:
-        """(N, C, H, W), (N, C, H, W) -> (N, C, H, W)."""
-        return spatial + semantic
-
-
-class ConvFusion(nn.Conv2d):
-    """concat(spatial, semantic) -> ReLU -> 1x1 conv (no bias) from ``2 * ch`` to ``ch`` channels: the reference's
-    ``FusionConv`` (fusion type "conv", its key and query nets). A ``Conv2d`` itself, so its weight is ``weight``."""
-
-    def __init__(self, ch: int) -> None:
-        super().__init__(2 * ch, ch, 1, bias=False)
-
-    def forward(self, spatial: torch.Tensor, semantic: torch.Tensor) -> torch.Tensor:  # type: ignore[override]
-        """(N, ch, H, W), (N, ch, H, W) -> (N, ch, H, W)."""
-        return super().forward(F.relu(torch.cat([spatial, semantic], dim=1)))
 
 
 def scaled(width: int, multiplier: float) -> int:

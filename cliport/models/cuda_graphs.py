@@ -84,7 +84,9 @@ for _register in (
     _register(_count_registration)
 
 
-def _capture_cuda(fn: Callable[..., torch.Tensor], inputs: tuple[torch.Tensor | None, ...], memory: GraphMemory):
+def _capture_cuda(
+    fn: Callable[..., torch.Tensor], inputs: tuple[torch.Tensor | None, ...], memory: GraphMemory
+) -> tuple[torch.cuda.CUDAGraph, torch.Tensor]:
     """Warm ``fn`` up on a side stream and capture it into the shared pool, all on the inputs' device.
 
     The streams are made here, under the device guard: ``torch.cuda.graph``'s default capture stream is
@@ -141,7 +143,7 @@ class GraphedForward:
         self._owner = weakref.ref(owner) if isinstance(owner, nn.Module) else None
         self._forward: Callable[[], Callable[..., torch.Tensor] | None]
         if self._owner is not None:
-            self._forward = weakref.WeakMethod(forward)  # type: ignore[arg-type]
+            self._forward = weakref.WeakMethod(forward)
         else:
             self._forward = lambda: forward
         self.memory = memory or GraphMemory()
@@ -161,9 +163,9 @@ class GraphedForward:
         fn = self._forward()
         owner = self._owner() if self._owner is not None else None
         if owner is not None and fn is not None:
-            fn = fn.__func__.__get__(memo.get(id(owner), owner))  # type: ignore[attr-defined]
+            fn = fn.__func__.__get__(memo.get(id(owner), owner))  # type: ignore[attr-defined]  # a bound method
         memory = copy.deepcopy(self.memory, memo)
-        return GraphedForward(fn, memory, self.batch_sizes)  # type: ignore[arg-type]
+        return GraphedForward(fn, memory, self.batch_sizes)  # type: ignore[arg-type]  # a dead one (None) stays dead
 
     def captured_batch_sizes(self) -> list[int]:
         """The padded batch sizes of the graphs held now, sorted."""

@@ -23,7 +23,7 @@ from torch import nn
 from cliport.models import rotation
 from cliport.models.blocks import PerSampleBatchNorm2d
 from cliport.models.correlation import transport_correlation
-from cliport.models.encoders import EncoderNet
+from cliport.models.encoder_net import EncoderNet
 
 #: Output channels of the place head's key and query nets (the reference's transport ``output_dim``).
 PLACE_FEATURES = 3
@@ -37,7 +37,7 @@ def shrink_map(x: torch.Tensor, map_scale: float) -> torch.Tensor:
     return F.interpolate(x, size=(round(h * map_scale), round(w * map_scale)), mode="area")
 
 
-def grow_logits(logits: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
+def grow_logits(logits: torch.Tensor, size: tuple[int, ...]) -> torch.Tensor:
     """(B, K, h, w) -> (B, K, H, W) bilinearly (pixel centres aligned); unchanged where already (H, W)."""
     if tuple(logits.shape[-2:]) == tuple(size):
         return logits

@@ -8,7 +8,7 @@ ResNet-50 and DistilBERT) the reference keeps inside these nets is the shared en
 (:mod:`cliport.models.encoders`), so a decoder takes the encoder's features as inputs.
 
 The reference's attribute names are given as comments where ours differ (``reference_names`` maps each
-tensor); ``lang_fuserN`` (``FusionMult``, no weights) is the product in :func:`_gate`.
+tensor); ``lang_fuserN`` (``FusionMult``, no weights) is :func:`~cliport.models.fusion.language_gate`.
 """
 
 from __future__ import annotations
@@ -16,13 +16,15 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from cliport.models.blocks import LateralFusion, UpBlock, UpStage, resize, scaled
-from cliport.models.encoders import FrozenEncoder
+from cliport.models.blocks import UpBlock, UpStage, resize, scaled
+from cliport.models.encoders.base import FrozenEncoder
+from cliport.models.fusion import LateralFusion, language_gate
 
 
 def _widths(width: float) -> tuple[int, int, int, int, int, int, int]:
     """The decoder's widths 1024, 512, 256, 128, 64, 32, 16 scaled by ``width``."""
-    return tuple(scaled(c, width) for c in (1024, 512, 256, 128, 64, 32, 16))  # type: ignore[return-value]
+    w1024, w512, w256, w128, w64, w32, w16 = (scaled(c, width) for c in (1024, 512, 256, 128, 64, 32, 16))
+    return w1024, w512, w256, w128, w64, w32, w16
 
 
 def _sentence_fc(encoder: FrozenEncoder) -> nn.Linear | None:
@@ -46,11 +48,6 @@ def _unet(
     ups = nn.ModuleList([UpBlock(w1024 + c3, w512), UpBlock(w512 + c2, w256), UpBlock(w256 + c1, w128)])
     layers = nn.ModuleList([UpStage(w128, w64), UpStage(w64, w32), UpStage(w32, w16)])
     return sentence_fc, lang_projs, conv1, ups, layers
-
-
-def _gate(x: torch.Tensor, projected_sentence: torch.Tensor) -> torch.Tensor:
-    """(N, C, H, W) map times a (N, C) projection of the sentence, per channel: the reference's ``FusionMult``."""
-    return x * projected_sentence[:, :, None, None]
 
 
 class LingUNetDecoder(nn.Module):
@@ -82,9 +79,9 @@ class LingUNetDecoder(nn.Module):
             sentence = self.sentence_fc(sentence)
 
         x = self.bottleneck(l4)
-        x = up1(_gate(x, lang_proj1(sentence)), l3)
-        x = up2(_gate(x, lang_proj2(sentence)), l2)
-        x = up3(_gate(x, lang_proj3(sentence)), l1)
+        x = up1(language_gate(x, lang_proj1(sentence)), l3)
+        x = up2(language_gate(x, lang_proj2(sentence)), l2)
+        x = up3(language_gate(x, lang_proj3(sentence)), l1)
         x = layer1(x)
         x = layer2(x)
         x = layer3(x)
@@ -97,7 +94,7 @@ class LingUNetLatDecoder(nn.Module):
     stream of the two-stream nets.
 
     :class:`LingUNetDecoder` (the same parts and names) with lateral connections: the output of each of its
-    six up-steps is fused (concat -> ReLU -> 1x1 conv, :class:`~cliport.models.blocks.LateralFusion`) with the
+    six up-steps is fused (concat -> ReLU -> 1x1 conv, :class:`~cliport.models.fusion.LateralFusion`) with the
     spatial stream's lateral of the same resolution. ``lateral_widths``: the six laterals' channels
     (strides 16, 8, 4, 2, 1, 1/2), :attr:`ResNet45_10s.lateral_widths <cliport.models.resnet.ResNet45_10s>`.
     """
@@ -141,11 +138,11 @@ class LingUNetLatDecoder(nn.Module):
             sentence = self.sentence_fc(sentence)
 
         x = self.bottleneck(l4)
-        x = up1(_gate(x, lang_proj1(sentence)), l3)
+        x = up1(language_gate(x, lang_proj1(sentence)), l3)
         x = lat_fusion1(x, lat16)
-        x = up2(_gate(x, lang_proj2(sentence)), l2)
+        x = up2(language_gate(x, lang_proj2(sentence)), l2)
         x = lat_fusion2(x, lat8)
-        x = up3(_gate(x, lang_proj3(sentence)), l1)
+        x = up3(language_gate(x, lang_proj3(sentence)), l1)
         x = lat_fusion3(x, lat4)
         x = layer1(x)
         x = lat_fusion4(x, lat2)

@@ -22,7 +22,7 @@ REFERENCE_AGENTS: dict[str, tuple[str, ...]] = {
 
 
 #: Our prefix (within a net) of its own CLIP batch-norm statistics (``per_net_clip_stats``:
-#: :class:`~cliport.models.encoders.PerNetClipStats`, saved under the net's ``encoder_stats``).
+#: :class:`~cliport.models.encoder_net.PerNetClipStats`, saved under the net's ``encoder_stats``).
 PER_NET_CLIP_STATS = "encoder_stats."
 
 
@@ -135,7 +135,7 @@ def frozen_prefixes(agent: str) -> tuple[str, ...]:
     if agent == "transporter_only":
         return ()
     semantic = 2 if agent == "two_stream" else 1  # the stream that holds the CLIP copy
-    return tuple(streams[semantic] + "clip_rn50." for streams in _STREAMS[agent])
+    return tuple(f"{stream}clip_rn50." for streams in _STREAMS[agent] if (stream := streams[semantic]) is not None)
 
 
 def from_reference(

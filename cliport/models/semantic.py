@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import torch
 
-from cliport.models.encoders import EncoderNet, FrozenEncoder
+from cliport.models.encoder_net import EncoderNet
+from cliport.models.encoders.base import FrozenEncoder
 from cliport.models.lingunet import LingUNetDecoder
 
 

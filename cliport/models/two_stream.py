@@ -11,8 +11,9 @@ from __future__ import annotations
 
 import torch
 
-from cliport.models.blocks import AddFusion, ConvFusion
-from cliport.models.encoders import EncoderNet, FrozenEncoder
+from cliport.models.encoder_net import EncoderNet
+from cliport.models.encoders.base import FrozenEncoder
+from cliport.models.fusion import AddFusion, ConvFusion
 from cliport.models.lingunet import LingUNetLatDecoder
 from cliport.models.preprocess import IN_CHANNELS, transporter_normalize
 from cliport.models.resnet import ResNet45_10s

@@ -47,8 +47,8 @@ class TrainConfig:
         recipe: the training recipe, a table of configs/recipes.toml: cliport (the reference CLIPort's code:
             the loss averaged over every map cell, Adam eps 1e-8, CLIP's batch norms training per net,
             bilinear augmentation about (W/2, H/2)), ravens (Transporter Networks' code: the per-sample
-            cross-entropy, Adam eps 1e-7, nearest-neighbour augmentation about (W/2, H/2)) or legacy (this
-            project before 0.3). A run keeps its recipe when resumed.
+            cross-entropy, Adam eps 1e-7, nearest-neighbour augmentation about (W/2, H/2)) or legacy (cliport
+            0.2's training, before recipes existed in 0.3.0). A run keeps its recipe when resumed.
         every_instruction: train on every instruction the demos record for each step (``cliport-demos
             --every-instruction``), each with the oracle's action for it, not only the one each scene was built
             with: the same image under other sentences and other answers. Not the reference's.
@@ -107,7 +107,7 @@ class TrainConfig:
         config.validate()
         if config.training_recipe().encoder_norms == "train" and hasattr(config.agent_config, "per_net_clip_stats"):
             # Training CLIP's batch norms needs each net's own statistics, saved with its weights.
-            config.agent_config.per_net_clip_stats = True  # type: ignore[attr-defined]
+            config.agent_config.per_net_clip_stats = True
         return config
 
     def training_recipe(self) -> Recipe:

@@ -22,6 +22,7 @@ from torch import nn
 from torch.utils.data import DataLoader, RandomSampler
 from tqdm import tqdm
 
+from cliport.agents.base import PickPlaceAgent
 from cliport.agents.checkpoint import save_weights
 from cliport.agents.loss import optimizer_step
 from cliport.env.environment import expected_renderer
@@ -77,7 +78,7 @@ def load_run_config(run_dir: str) -> TrainConfig:
 class _LossModule(nn.Module):
     """Wraps an agent so that DDP sees ``forward(batch) -> (loss, info)`` with the recipe's loss."""
 
-    def __init__(self, agent: nn.Module, loss: str):
+    def __init__(self, agent: PickPlaceAgent, loss: str) -> None:
         super().__init__()
         self.agent = agent
         self.loss = loss
@@ -247,11 +248,11 @@ def train(
                 "torch_rng": torch.get_rng_state(),
             }
         save_torch(payload, run.checkpoint(kind))
-        if kind != "last":
-            save_weights(payload, run.weights(kind), step=int(kind))  # safetensors beside the .pt
+        if isinstance(kind, int):  # a scheduled step, not "last"
+            save_weights(payload, run.weights(kind), step=kind)  # safetensors beside the .pt
             link_or_copy(run.weights(kind), run.model_weights)  # RUN/model.safetensors: the newest one
-        if kind != "last" and validator is not None:
-            validator.checkpoint_saved(int(kind), run.checkpoint(kind))
+            if validator is not None:
+                validator.checkpoint_saved(kind, run.checkpoint(kind))
 
     tensorboard = summary_writer(run.tensorboard, purge_step=step + 1 if step else None) if rank == 0 else None
     bar = tqdm(total=config.n_steps, initial=step, desc=f"train {config.agent}", disable=not progress or rank != 0)
@@ -261,8 +262,8 @@ def train(
     watch = DeadMapWatch()
     try:
         with open(run.metrics, "a", newline="") if rank == 0 else contextlib.nullcontext() as metrics_file:
-            writer = csv.DictWriter(metrics_file, fieldnames=fields) if rank == 0 else None
-            if writer is not None and metrics_file.tell() == 0:
+            writer = csv.DictWriter(metrics_file, fieldnames=fields) if metrics_file is not None else None
+            if writer is not None and metrics_file is not None and metrics_file.tell() == 0:
                 writer.writeheader()
             agent.train()
             while step < config.n_steps:
@@ -282,7 +283,7 @@ def train(
                         samples_per_second=round(window_steps * config.batch_size * world / elapsed, 2),
                         elapsed_s=round(time.perf_counter() - start, 1),
                     )
-                    if writer is not None:
+                    if writer is not None and metrics_file is not None:
                         writer.writerow(row)
                         metrics_file.flush()
                     if tensorboard is not None:

@@ -120,7 +120,7 @@ def from_dict(cls: type[T], data: Mapping[str, Any], source: str, nested: Mappin
     if not isinstance(data, Mapping):
         raise ConfigError(f"{source}: expected a table for {cls.__name__}, got {data!r}")
     hints = _hints(cls)
-    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}  # type: ignore[arg-type]
+    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}  # type: ignore[arg-type]  # T: a dataclass
     unknown = sorted(set(data) - set(fields))
     if unknown:
         close = {k: _closest(k, fields) for k in unknown}

@@ -42,6 +42,11 @@ class InertObject:
     (constructor arguments, state, list items, dict items); no method of the real class ever runs."""
 
     global_name = "?"
+    args: tuple[Any, ...]
+    kwargs: dict[str, Any]
+    state: Any
+    items: list[Any]
+    entries: dict[Any, Any]
 
     def __new__(cls, *args: Any, **kwargs: Any) -> InertObject:  # NEWOBJ calls only __new__
         obj = super().__new__(cls)

@@ -2,7 +2,7 @@
 
 import pytest
 
-from cliport.models.clip_encoder import FrozenCLIP, load_clip
+from cliport.models.encoders.clip_encoder import FrozenCLIP, load_clip
 
 
 @pytest.fixture(scope="module")

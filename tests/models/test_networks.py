@@ -1,7 +1,7 @@
 import pytest
 import torch
 
-from cliport.models.clip_encoder import FrozenCLIP
+from cliport.models.encoders.clip_encoder import FrozenCLIP
 from cliport.models.heads import PickHead, PlaceHead
 from cliport.models.resnet import ResNet43_8s, ResNet45_10s
 from cliport.models.semantic import SemanticNet

@@ -135,7 +135,7 @@ def test_agent_computes_what_the_reference_computes(agent: str, reference_runs, 
 
 
 def test_clip_trunk_sentence_and_tokens_equal_the_references(reference_oracle, reference_runs, tmp_path) -> None:
-    from cliport.models.clip_encoder import load_clip
+    from cliport.models.encoders.clip_encoder import load_clip
 
     run = reference_runs["two_stream"]
     texts = [LANG, "pack all the yellow and blue blocks into the brown box", "Stack the RED block, then the tiny one!"]

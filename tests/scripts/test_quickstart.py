@@ -80,7 +80,7 @@ def _quickstart_module():
 def test_auto_clip_weights_are_the_published_ones_where_they_can_be_had(available, monkeypatch, capsys):
     import argparse
 
-    from cliport.models import clip_weights
+    from cliport.models.encoders import clip_weights
 
     quickstart = _quickstart_module()
     monkeypatch.setattr(clip_weights, "published_weights_available", lambda *a, **k: available)

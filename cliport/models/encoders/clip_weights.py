@@ -28,9 +28,16 @@ import torch
 from torch import nn
 
 from cliport.errors import UserError
-from cliport.models import weights
-from cliport.models.clip_registry import MODEL_NAME, check_model_name, model_config, pretrained_tags, quiet_open_clip
-from cliport.models.clip_tokenizer import TokenizerUnavailable
+from cliport.models.encoders import weights
+from cliport.models.encoders.clip_registry import (
+    MODEL_NAME,
+    check_model_name,
+    model_config,
+    pretrained_tags,
+    quiet_open_clip,
+)
+from cliport.models.encoders.clip_tokenizer import TokenizerUnavailable
+from cliport.utils import hub
 
 RANDOM_SEED = 0
 
@@ -91,7 +98,7 @@ def _hf_filenames(model_name: str, tag: str) -> list[str]:
 
 def _hub_reachable(timeout_s: float = 3.0) -> bool:
     """Whether the Hugging Face hub answers a TCP connection within `timeout_s` seconds (False if HF_HUB_OFFLINE)."""
-    return weights.hf_hub_reachable(timeout_s)
+    return hub.hf_hub_reachable(timeout_s)
 
 
 def _cached_pretrained_file(model_name: str, tag: str) -> str | None:
@@ -140,13 +147,14 @@ def _is_torchscript(path: Path) -> bool:
         return any(name.endswith("constants.pkl") or "/code/" in name for name in archive.namelist())
 
 
-def calibrate_batch_norm(model: nn.Module, n_images: int = 4, size: int = 128) -> None:
+def calibrate_batch_norm(model: Any, n_images: int = 4, size: int = 128) -> None:
     """Set the image trunk's batch-norm statistics from seeded noise images (random weights only).
 
     Freshly initialised batch norms hold mean 0 / variance 1, under which the random trunk's
     activations shrink about a thousandfold by layer4, so a random "semantic stream" carries almost
     no signal. One pass in training mode over normalised noise gives every layer unit-scale inputs,
-    as trained weights do; the result is deterministic (see :func:`cliport.models.weights.calibrate_batch_norm`).
+    as trained weights do; the result is deterministic (see
+    :func:`cliport.models.encoders.weights.calibrate_batch_norm`).
     """
     weights.calibrate_batch_norm(
         model.visual,
@@ -157,7 +165,7 @@ def calibrate_batch_norm(model: nn.Module, n_images: int = 4, size: int = 128) -
     )
 
 
-def _create_model(model_name: str, pretrained: str | None = None) -> nn.Module:
+def _create_model(model_name: str, pretrained: str | None = None) -> Any:
     """``open_clip.create_model``; a Hugging Face text tower whose config cannot be fetched is one line."""
     import open_clip
 
@@ -174,7 +182,7 @@ def _create_model(model_name: str, pretrained: str | None = None) -> nn.Module:
         ) from None
 
 
-def _set_normalisation(model: nn.Module, model_name: str, tag: str | None) -> nn.Module:
+def _set_normalisation(model: Any, model_name: str, tag: str | None) -> nn.Module:
     """Set ``model.visual.image_mean/image_std`` to what its weights expect and return the model.
 
     A pretrained tag: that tag's preprocessing mean/std. Other sources (a file, "random"): the mean/std

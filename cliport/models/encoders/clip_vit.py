@@ -8,9 +8,10 @@ Parameter-free: the model's weights are used as they are.
 
 from __future__ import annotations
 
+from typing import Any
+
 import torch
 import torch.nn.functional as F
-from torch import nn
 
 #: The strides the ViT adapter resamples its four chosen blocks' patch tokens to (layer1..layer4).
 _VIT_LEVEL_STRIDES = (4, 8, 16, 32)
@@ -21,7 +22,8 @@ def vit_block_indices(depth: int) -> tuple[int, int, int, int]:
 
     12 blocks -> (2, 5, 8, 11) (blocks 3, 6, 9, 12); 24 -> (5, 11, 17, 23); 32 -> (7, 15, 23, 31).
     """
-    return tuple(max(1, (depth * k + 2) // 4) - 1 for k in (1, 2, 3, 4))  # type: ignore[return-value]
+    a, b, c, d = (max(1, (depth * k + 2) // 4) - 1 for k in (1, 2, 3, 4))
+    return a, b, c, d
 
 
 def _resized_pos_embed(pos: torch.Tensor, old_grid: tuple[int, int], new_grid: tuple[int, int]) -> torch.Tensor:
@@ -46,7 +48,7 @@ def _resample_to(grid: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
     return F.interpolate(grid, size=size, mode="bilinear", align_corners=False)
 
 
-def vit_levels(visual: nn.Module, block_indices: tuple[int, int, int, int], x: torch.Tensor) -> list[torch.Tensor]:
+def vit_levels(visual: Any, block_indices: tuple[int, int, int, int], x: torch.Tensor) -> list[torch.Tensor]:
     """Five trunk levels of a ViT tower (open_clip's ``VisionTransformer``), parameter-free, from normalised
     images (N, 3, H, W); ``block_indices``: the four blocks read (:func:`vit_block_indices` of the depth).
 

@@ -7,7 +7,7 @@ models whose tokenizer is a Hugging Face one (the SigLIP family, ``*-CLIPA``, ``
 HF-text-tower models also their text tower's config. Offline they therefore need a Hugging Face cache
 (``HF_HOME``) filled on a machine with network; without one, loading fails with one line,
 :class:`TokenizerUnavailable`, before any weights are fetched. (SigLIP models are refused for their timm
-image tower in any case, see :mod:`cliport.models.clip_registry`.)
+image tower in any case, see :mod:`cliport.models.encoders.clip_registry`.)
 """
 
 from __future__ import annotations
@@ -16,8 +16,8 @@ import functools
 from typing import Any
 
 from cliport.errors import UserError
-from cliport.models import weights
-from cliport.models.clip_registry import MODEL_NAME, quiet_open_clip
+from cliport.models.encoders import weights
+from cliport.models.encoders.clip_registry import MODEL_NAME, quiet_open_clip
 
 # The default model reads at most this many tokens of an instruction, start and end tokens included; the
 # tokenizer cuts the rest off without saying so. Other models: FrozenCLIP.context_length.

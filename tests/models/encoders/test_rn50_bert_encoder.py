@@ -11,10 +11,10 @@ import torch
 from safetensors.torch import save_file
 
 from cliport.errors import UserError
-from cliport.models import distilbert, rn50_bert_encoder, rn50_trunk
-from cliport.models.distilbert import BERTWeightsUnavailable, HashingTokenizer, build_distilbert
-from cliport.models.rn50_bert_encoder import MAX_TOKENS, FrozenRN50BERT, load_rn50_bert
-from cliport.models.rn50_trunk import RN50WeightsUnavailable, build_rn50_trunk, imagenet_cache_file
+from cliport.models.encoders import distilbert, rn50_bert_encoder, rn50_trunk
+from cliport.models.encoders.distilbert import BERTWeightsUnavailable, HashingTokenizer, build_distilbert
+from cliport.models.encoders.rn50_bert_encoder import MAX_TOKENS, FrozenRN50BERT, load_rn50_bert
+from cliport.models.encoders.rn50_trunk import RN50WeightsUnavailable, build_rn50_trunk, imagenet_cache_file
 
 VOCAB = ["[PAD]", "[UNK]", "[CLS]", "[SEP]", "[MASK]", "pack", "push", "the", "box", "pile", "red", "block", ",", "."]
 
@@ -162,10 +162,10 @@ def test_import_is_cheap() -> None:
     import sys
 
     code = (
-        "import sys, cliport.models.rn50_bert_encoder; "
+        "import sys, cliport.models.encoders.rn50_bert_encoder; "
         "print('transformers' in sys.modules, 'torchvision' in sys.modules)"
     )
-    env = {**os.environ, "PYTHONPATH": str(Path(rn50_bert_encoder.__file__).parents[2])}
+    env = {**os.environ, "PYTHONPATH": str(Path(rn50_bert_encoder.__file__).parents[3])}
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env)
     assert out.stdout.split() == ["False", "False"]
 

@@ -33,7 +33,8 @@ import torch
 from torch import nn
 
 from cliport.errors import UserError
-from cliport.models import weights
+from cliport.models.encoders import weights
+from cliport.utils import hub
 
 RANDOM_SEED = 0
 _TORCHVISION_HOST = ("download.pytorch.org", 443)
@@ -51,7 +52,7 @@ class ResNet50Trunk(nn.Module):
     torchvision ``resnet50`` state dict without the ``fc.*`` tensors.
     """
 
-    def __init__(self, resnet: nn.Module) -> None:
+    def __init__(self, resnet: Any) -> None:  # a torchvision ResNet (torchvision here has no type information)
         super().__init__()
         self.conv1 = resnet.conv1
         self.bn1 = resnet.bn1
@@ -91,7 +92,7 @@ def imagenet_cache_file() -> Path:
 
 def _download_reachable(timeout_s: float = 3.0) -> bool:
     """Whether download.pytorch.org answers a TCP connection within `timeout_s` seconds."""
-    return weights.host_reachable(*_TORCHVISION_HOST, timeout_s=timeout_s)
+    return hub.host_reachable(*_TORCHVISION_HOST, timeout_s=timeout_s)
 
 
 def _rn50_offline_help(source: str, reason: str) -> str:

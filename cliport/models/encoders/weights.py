@@ -1,4 +1,4 @@
-"""Helpers shared by the frozen encoders' weight loading: state-dict files, architecture checks, reachability.
+"""Helpers shared by the frozen encoders' weight loading: state-dict files, architecture checks, calibration.
 
 Each encoder raises its own user-error class (``CLIPWeightsUnavailable``, ``RN50WeightsUnavailable``,
 ...) with its own wording, so the helpers that report a bad file take ``error``: a function
@@ -8,9 +8,7 @@ Each encoder raises its own user-error class (``CLIPWeightsUnavailable``, ``RN50
 
 from __future__ import annotations
 
-import os
 import pickle
-import socket
 import struct
 import zipfile
 from collections.abc import Callable, Mapping
@@ -22,7 +20,6 @@ from torch import nn
 #: Builds the exception raised for a bad weights file: ``error(path, reason)``.
 BadFileError = Callable[[Path, str], Exception]
 
-HF_HUB_HOST = ("huggingface.co", 443)
 CALIBRATION_SEED = 0
 
 
@@ -102,25 +99,6 @@ def check_architecture(
         problems.append(f"{len(mismatched)} with other shapes (e.g. {k}: {shapes})")
     if problems:
         raise error(path, f"not a state dict of {what}: {'; '.join(problems)}")
-
-
-def host_reachable(host: str, port: int, timeout_s: float = 3.0) -> bool:
-    """Whether ``host:port`` accepts a TCP connection within ``timeout_s`` seconds."""
-    try:
-        with socket.create_connection((host, port), timeout=timeout_s):
-            return True
-    except OSError:
-        return False
-
-
-def hf_hub_offline() -> bool:
-    """Whether the environment asks the Hugging Face hub to stay offline (``HF_HUB_OFFLINE`` set and not 0/false)."""
-    return os.environ.get("HF_HUB_OFFLINE", "0") not in ("0", "", "false", "False")
-
-
-def hf_hub_reachable(timeout_s: float = 3.0) -> bool:
-    """Whether the Hugging Face hub may be used: ``HF_HUB_OFFLINE`` unset and huggingface.co:443 answers in time."""
-    return not hf_hub_offline() and host_reachable(*HF_HUB_HOST, timeout_s=timeout_s)
 
 
 def calibrate_batch_norm(

@@ -1,31 +1,33 @@
 """One frozen open_clip model shared by every semantic stream: image trunk features and sentence features.
 
 The model is any name of ``open_clip.list_models()`` (``--semantic-encoder NAME``, checked first by
-:mod:`cliport.models.clip_registry`); the default is ``RN50-quickgelu`` (CLIPort's CLIP RN50).
+:mod:`cliport.models.encoders.clip_registry`); the default is ``RN50-quickgelu`` (CLIPort's CLIP RN50).
 
 Image trunks (five levels at strides 4, 4, 8, 16, 32, see :class:`FrozenCLIP`):
 
 - open_clip's ResNets (``RN50``, ``RN101``, ``RN50x4``, ... and their ``-quickgelu`` twins): the stem
   and layer1..layer4, as CLIPort uses them.
 - open_clip's ViTs (``ViT-B-16``, ``ViT-B-32``, ``ViT-L-14``, ...): the patch tokens of four blocks
-  spread evenly through the depth, resampled to the four strides (:func:`cliport.models.clip_vit.vit_levels`).
+  spread evenly through the depth, resampled to the four strides (:func:`cliport.models.encoders.clip_vit.vit_levels`).
 - Image towers that come from timm (``ViT-B-16-SigLIP*``, ``convnext_*``, ``EVA*``, ``ViTamin*``, ...)
   are not supported: :class:`UnsupportedEncoderError` says so before the weights are fetched.
 
-Weights: :mod:`cliport.models.clip_weights` (pretrained tags, local files, "random"). Text: the model's own
-tokenizer and context length, :mod:`cliport.models.clip_tokenizer`.
+Weights: :mod:`cliport.models.encoders.clip_weights` (pretrained tags, local files, "random"). Text: the model's own
+tokenizer and context length, :mod:`cliport.models.encoders.clip_tokenizer`.
 """
 
 from __future__ import annotations
 
+from typing import Any
+
 import torch
 from torch import nn
 
-from cliport.models.clip_registry import MODEL_NAME, UnsupportedEncoderError, check_model_name
-from cliport.models.clip_tokenizer import count_tokens, load_tokenizer
-from cliport.models.clip_vit import vit_block_indices, vit_levels
-from cliport.models.clip_weights import build_clip_model
-from cliport.models.encoders import FrozenEncoder
+from cliport.models.encoders.base import FrozenEncoder
+from cliport.models.encoders.clip_registry import MODEL_NAME, UnsupportedEncoderError, check_model_name
+from cliport.models.encoders.clip_tokenizer import count_tokens, load_tokenizer
+from cliport.models.encoders.clip_vit import vit_block_indices, vit_levels
+from cliport.models.encoders.clip_weights import build_clip_model
 
 # The default model's sentence width and trunk channels (stem, layer1..layer4 at strides 4, 4, 8, 16, 32);
 # other models have their own, see FrozenCLIP.trunk_channels and FrozenCLIP.sentence_dim.
@@ -42,9 +44,9 @@ def _trunk_channels(visual: nn.Module) -> tuple[int, int, int, int, int]:
 
     if isinstance(visual, ModifiedResNet):
         layers = (visual.layer1, visual.layer2, visual.layer3, visual.layer4)
-        return (visual.conv3.out_channels, *(layer[-1].conv3.out_channels for layer in layers))  # type: ignore[return-value]
+        return (visual.conv3.out_channels, *(layer[-1].conv3.out_channels for layer in layers))
     if isinstance(visual, VisionTransformer):
-        return (visual.transformer.width,) * 5  # type: ignore[return-value]
+        return (visual.transformer.width,) * 5
     raise UnsupportedEncoderError(f"no trunk adapter for the image tower {type(visual).__name__}")
 
 
@@ -56,8 +58,9 @@ def _sentence_dim(model: nn.Module) -> int | None:
     if isinstance(projection, torch.Tensor):
         return int(projection.shape[-1])
     text = getattr(model, "text", None)  # CustomTextCLIP: a text tower module with its own projection
-    if isinstance(getattr(text, "output_dim", None), int):
-        return text.output_dim  # type: ignore[union-attr]
+    output_dim = getattr(text, "output_dim", None)
+    if isinstance(output_dim, int):
+        return output_dim
     return None
 
 
@@ -70,12 +73,16 @@ class FrozenCLIP(FrozenEncoder):
       channels = the stem's last conv and each layer's last bottleneck conv (RN50, RN101:
       64, 256, 512, 1024, 2048; RN50x4: 80, 320, 640, 1280, 2560).
     - ViT towers: five levels of the transformer width (768 for ViT-B) built from patch tokens, see
-      :func:`~cliport.models.clip_vit.vit_levels`.
+      :func:`~cliport.models.encoders.clip_vit.vit_levels`.
 
     ``sentence_dim`` is the text projection's output width (RN50: 1024; RN101, ViT-B-16: 512). Images are
     normalised with the model's ``visual.image_mean/image_std``; sentences use the model's own tokenizer and
     context length (:attr:`context_length`).
     """
+
+    model: Any  # an open_clip CLIP model: open_clip ships no type information
+    mean: torch.Tensor
+    std: torch.Tensor
 
     def __init__(self, model: nn.Module, source: str, model_name: str = MODEL_NAME) -> None:
         """``model``: an open_clip CLIP of ``model_name`` (see :func:`build_clip_model`); ``source``: where its
@@ -87,8 +94,8 @@ class FrozenCLIP(FrozenEncoder):
         self.source = source
         self.model_name = model_name
         self._tokenizer = load_tokenizer(model_name)
-        self.context_length = int(getattr(self._tokenizer, "context_length", None) or model.context_length)
-        visual = model.visual
+        self.context_length = int(getattr(self._tokenizer, "context_length", None) or self.model.context_length)
+        visual = self.model.visual
         self.trunk_channels = _trunk_channels(visual)
         #: 0-based indices of the four blocks the ViT levels come from; None for a ResNet tower.
         self.vit_blocks = (
@@ -97,7 +104,7 @@ class FrozenCLIP(FrozenEncoder):
         sentence_dim = _sentence_dim(model)
         if sentence_dim is None:  # not readable from the modules: one tiny pass
             with torch.no_grad():
-                sentence_dim = int(model.encode_text(self._tokenizer(["a"])).shape[-1])
+                sentence_dim = int(self.model.encode_text(self._tokenizer(["a"])).shape[-1])
         self.sentence_dim = sentence_dim
         mean = getattr(visual, "image_mean", None) or CLIP_MEAN
         std = getattr(visual, "image_std", None) or CLIP_STD

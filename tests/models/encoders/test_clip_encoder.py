@@ -7,10 +7,10 @@ import pytest
 import torch
 from safetensors.torch import save_file
 
-from cliport.models import clip_encoder, clip_registry, clip_weights
-from cliport.models.clip_encoder import FrozenCLIP, load_clip
-from cliport.models.clip_tokenizer import CONTEXT_LENGTH, instruction_token_count
-from cliport.models.clip_weights import CLIPWeightsUnavailable, build_clip_model
+from cliport.models.encoders import clip_encoder, clip_registry, clip_weights
+from cliport.models.encoders.clip_encoder import FrozenCLIP, load_clip
+from cliport.models.encoders.clip_tokenizer import CONTEXT_LENGTH, instruction_token_count
+from cliport.models.encoders.clip_weights import CLIPWeightsUnavailable, build_clip_model
 
 
 def _perturbed_state(clip: FrozenCLIP) -> dict[str, torch.Tensor]:

@@ -13,8 +13,8 @@ plain mean over the tokens of one unpadded sentence, which is the same thing). T
 trainable Linear 768 -> 1024 on it (:attr:`FrozenRN50BERT.sentence_projection`, CLIPort's
 ``text_fc``). DistilBERT reads at most :data:`MAX_TOKENS` tokens, ``[CLS]`` and ``[SEP]`` included.
 
-The trunk and its weights: :mod:`cliport.models.rn50_trunk` (``rn50_weights``); DistilBERT, its tokenizer
-and its weights: :mod:`cliport.models.distilbert` (``bert_weights``).
+The trunk and its weights: :mod:`cliport.models.encoders.rn50_trunk` (``rn50_weights``); DistilBERT, its tokenizer
+and its weights: :mod:`cliport.models.encoders.distilbert` (``bert_weights``).
 """
 
 from __future__ import annotations
@@ -24,9 +24,9 @@ from typing import Any
 import torch
 from torch import nn
 
-from cliport.models.distilbert import build_distilbert
-from cliport.models.encoders import FrozenEncoder
-from cliport.models.rn50_trunk import ResNet50Trunk, build_rn50_trunk
+from cliport.models.encoders.base import FrozenEncoder
+from cliport.models.encoders.distilbert import build_distilbert
+from cliport.models.encoders.rn50_trunk import ResNet50Trunk, build_rn50_trunk
 
 TRUNK_CHANNELS = (64, 256, 512, 1024, 2048)
 SENTENCE_DIM = 768
@@ -43,6 +43,9 @@ class FrozenRN50BERT(FrozenEncoder):
     trunk_channels = TRUNK_CHANNELS
     sentence_dim = SENTENCE_DIM
     sentence_projection = SENTENCE_PROJECTION
+
+    mean: torch.Tensor
+    std: torch.Tensor
 
     def __init__(
         self, trunk: ResNet50Trunk, bert: nn.Module, tokenizer: Any, rn50_source: str, bert_source: str

@@ -11,11 +11,11 @@ import torch
 from safetensors.torch import save_file
 
 from cliport.errors import UserError
-from cliport.models import clip_weights
-from cliport.models.clip_encoder import FrozenCLIP, load_clip
-from cliport.models.clip_registry import UnknownEncoderError, UnsupportedEncoderError
-from cliport.models.clip_vit import vit_block_indices
-from cliport.models.clip_weights import CLIPWeightsUnavailable, build_clip_model
+from cliport.models.encoders import clip_weights
+from cliport.models.encoders.clip_encoder import FrozenCLIP, load_clip
+from cliport.models.encoders.clip_registry import UnknownEncoderError, UnsupportedEncoderError
+from cliport.models.encoders.clip_vit import vit_block_indices
+from cliport.models.encoders.clip_weights import CLIPWeightsUnavailable, build_clip_model
 from cliport.models.semantic import SemanticNet
 from cliport.models.two_stream import TwoStreamNet
 
@@ -180,8 +180,8 @@ def test_hub_tokenizer_offline_is_one_user_error_line(tmp_path: Path) -> None:
     In a fresh interpreter, since huggingface_hub reads HF_HOME and HF_HUB_OFFLINE when it is imported.
     """
     script = (
-        "from cliport.models.clip_encoder import load_clip\n"
-        "from cliport.models.clip_tokenizer import TokenizerUnavailable\n"
+        "from cliport.models.encoders.clip_encoder import load_clip\n"
+        "from cliport.models.encoders.clip_tokenizer import TokenizerUnavailable\n"
         "try:\n"
         "    load_clip('random', 'ViT-H-14-CLIPA')\n"
         "except TokenizerUnavailable as err:\n"

@@ -1,7 +1,7 @@
 """The sentence encoder of CLIPort's RN50-BERT ablation: DistilBERT, its tokenizer and its weight sources.
 
 The architecture is ``distilbert-base-uncased``'s (``transformers.DistilBertModel``); how a sentence
-feature is read from it is :class:`cliport.models.rn50_bert_encoder.FrozenRN50BERT`'s.
+feature is read from it is :class:`cliport.models.encoders.rn50_bert_encoder.FrozenRN50BERT`'s.
 
 Weight sources (``bert_weights`` in the agent configs):
 
@@ -28,13 +28,14 @@ import re
 import zlib
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import torch
 from torch import nn
 
 from cliport.errors import UserError
-from cliport.models import weights
+from cliport.models.encoders import weights
+from cliport.utils import hub
 
 RANDOM_SEED = 0
 DEFAULT_BERT = "distilbert-base-uncased"
@@ -105,7 +106,7 @@ def _bad_bert_folder(path: Path, reason: str) -> BERTWeightsUnavailable:
 
 def _hub_reachable(timeout_s: float = 3.0) -> bool:
     """Whether the Hugging Face hub answers within `timeout_s` seconds (False when HF_HUB_OFFLINE is set)."""
-    return weights.hf_hub_reachable(timeout_s)
+    return hub.hf_hub_reachable(timeout_s)
 
 
 def _hf_cache_dir() -> str:
@@ -193,8 +194,12 @@ def _load_bert_folder(folder: Path, label: Path | str) -> tuple[nn.Module, Any]:
     try:
         with _quiet_transformers():
             config = DistilBertConfig.from_pretrained(str(folder), local_files_only=True)
-            model, info = DistilBertModel.from_pretrained(
-                str(folder), config=config, local_files_only=True, output_loading_info=True
+            # output_loading_info=True returns (model, loading info); transformers' annotation names the model only.
+            model, info = cast(
+                tuple[DistilBertModel, dict[str, Any]],
+                DistilBertModel.from_pretrained(
+                    str(folder), config=config, local_files_only=True, output_loading_info=True
+                ),
             )
             tokenizer = DistilBertTokenizerFast.from_pretrained(str(folder), local_files_only=True)
     except (OSError, ValueError, RuntimeError, KeyError, SafetensorError) as err:  # errors for broken files
@@ -247,7 +252,7 @@ def build_distilbert(source: str) -> tuple[nn.Module, Any]:
         return _load_bert_folder(cached, cached)
     if not _hub_reachable():
         reason = "it is not a local folder, not in the Hugging Face cache, and the hub is unreachable"
-        if weights.hf_hub_offline():
+        if hub.hf_hub_offline():
             reason += " (HF_HUB_OFFLINE is set)"
         raise BERTWeightsUnavailable(_bert_offline_help(source, reason + "."))
     try:
