@@ -1,0 +1,145 @@
+"""``cliport-reproduce --status OUT``: each cell of a study done, running or waiting, and the time left.
+
+Read from the folder alone (no Ray needed): a cell is done when it has its completion record, running when it
+has started an attempt and a driver holds the folder's lock, waiting otherwise (with the training step it would
+resume from, if it has one). The time left is the finished cells' mean duration times the work left, spread
+over the cells running at once.
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+import socket
+import statistics
+import time
+from typing import Any
+
+from cliport.study.cells import CellFiles
+from cliport.study.config import StudyConfig, saved_config
+from cliport.study.lock import driver_holding
+from cliport.study.report import row_score
+from cliport.utils.files import read_json
+from cliport.utils.run_dir import RunDir
+
+
+def _trained_steps(run_dir: str) -> int:
+    """The last step metrics.csv logged (0 before the first row)."""
+    path = RunDir(run_dir).metrics
+    if not os.path.exists(path):
+        return 0
+    with open(path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    try:
+        return int(rows[-1]["step"]) if rows else 0
+    except (KeyError, ValueError):
+        return 0
+
+
+def _alive_here(attempt: dict[str, Any]) -> bool | None:
+    """Whether the attempt's process lives (None when it ran on another host, where this cannot be seen)."""
+    if attempt.get("host") != socket.gethostname() or not attempt.get("pid"):
+        return None
+    try:
+        os.kill(int(attempt["pid"]), 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def cell_states(config: StudyConfig) -> list[dict[str, Any]]:
+    """One dict per cell: task, agent, recipe, n_demos, seed, state (done/running/waiting), test, minutes,
+    step (trained steps), detail."""
+    driver = driver_holding(config.out)
+    rows = []
+    for cell in config.cells():
+        files = CellFiles(config, cell)
+        row: dict[str, Any] = {**vars(cell), "test": None, "minutes": None, "detail": ""}
+        record = files.record()
+        step = config.n_steps if record else _trained_steps(files.run_dir)
+        row["step"] = step
+        if record is not None:
+            row["state"] = "done"
+            row["test"] = row_score(record["summary"])[0]
+            row["minutes"] = record["minutes"]
+            if record.get("attempt", 1) > 1:
+                row["detail"] = (
+                    f"{record['attempt']} attempts, the last resumed from step {record['resumed_from_step']}"
+                )
+            rows.append(row)
+            continue
+        attempt = read_json(files.running) if os.path.exists(files.running) else None
+        training = f"step {step}/{config.n_steps}" if step < config.n_steps else "evaluating"
+        if attempt is not None and driver is not None:
+            row["state"] = "running"
+            alive = _alive_here(attempt)
+            if alive is False:
+                row["state"] = "waiting"
+                row["detail"] = f"its worker died at {training}: Ray runs it again"
+            else:
+                elapsed = (time.time() - attempt["time"]) / 60
+                row["detail"] = f"{training}, attempt {attempt['attempt']}, {elapsed:.1f} min"
+        else:
+            row["state"] = "waiting"
+            if step:
+                row["detail"] = f"resumes at its last checkpoint ({training} logged)"
+        rows.append(row)
+    return rows
+
+
+def _duration(minutes: float) -> str:
+    hours, rest = divmod(max(1, round(minutes)), 60)
+    return f"{hours} h {rest} min" if hours else f"{rest} min"
+
+
+def time_left(rows: list[dict[str, Any]], n_steps: int, driver_running: bool) -> str:
+    """The estimate's line: finished cells' mean minutes times the cells' work left (a running or interrupted
+    cell counts by its untrained fraction), over the cells running at once."""
+    done = [r["minutes"] for r in rows if r["state"] == "done" and r["minutes"] is not None]
+    left = [r for r in rows if r["state"] != "done"]
+    if not left:
+        return "time left: none, every cell is done"
+    if not done:
+        return f"time left: unknown until a cell finishes ({len(left)} cells to go)"
+    per_cell = statistics.mean(done)
+    work = sum(per_cell * (1 - min(r["step"], n_steps) / n_steps) for r in left)
+    at_once = max(1, sum(r["state"] == "running" for r in rows)) if driver_running else 1
+    return (
+        f"time left: about {_duration(work / at_once)} ({len(left)} cells to go, {per_cell:.1f} min per cell on "
+        f"average over {len(done)} finished, {at_once} at a time)"
+    )
+
+
+def status_report(out: str) -> str:
+    """The status table of the study in ``out`` and its time left, as text."""
+    config = saved_config(out)
+    rows = cell_states(config)
+    driver = driver_holding(out)
+    counts = {state: sum(r["state"] == state for r in rows) for state in ("done", "running", "waiting")}
+    who = f"a driver runs it (pid {driver['pid']} on {driver['host']})" if driver else "no driver runs it"
+    lines = [
+        f"study {out}: {len(rows)} cells, {counts['done']} done, {counts['running']} running, "
+        f"{counts['waiting']} waiting; {who}",
+        "",
+    ]
+    header = ["task", "agent", "recipe", "demos", "seed", "state", "test", "minutes", "detail"]
+    table = [header] + [
+        [
+            r["task"],
+            r["agent"],
+            r["recipe"],
+            str(r["n_demos"]),
+            str(r["seed"]),
+            r["state"],
+            "-" if r["test"] is None else f"{r['test']:.1f}",
+            "-" if r["minutes"] is None else f"{r['minutes']:.1f}",
+            r["detail"],
+        ]
+        for r in rows
+    ]
+    widths = [max(len(line[i]) for line in table) for i in range(len(header))]
+    lines += ["  ".join(v.ljust(w) for v, w in zip(line, widths, strict=True)).rstrip() for line in table]
+    lines += ["", time_left(rows, config.n_steps, driver is not None)]
+    return "\n".join(lines)
