@@ -6,14 +6,17 @@ A cell keeps its records in ``TASK_DIR/cells/NAME/`` (NAME = its run folder's na
 
     result.json      the completion record: the run's summary (a row of the table), minutes, host; written by
                      atomic rename as the cell's last act, so it exists only for a finished cell
-    running.json     the attempt now running (pid, host, start time, the step it resumed from)
-    attempts.jsonl   one line per attempt's start and one per completion, appended: what happened after a crash
+    attempts.jsonl   one line per attempt's start (pid, host, the step it resumed from) and one per completion,
+                     appended: what happened after a crash
+    .lock            locked (flock) while an attempt runs: one attempt at a time, and ``--status`` sees it
     log.txt          the cell's output when it ran as a Ray task
 
-A cell that finds its ``result.json`` returns it and does nothing else. Everything else it writes (checkpoints,
-val.json, test results) is written atomically by the trainer and the evaluation, and a killed attempt's
-successor resumes from ``checkpoints/last.pt`` and evaluates only what is missing. Everything a cell computes
-depends on its own settings and seeds: its torch thread count is set explicitly (:attr:`StudyConfig.threads`).
+A cell that finds its ``result.json`` returns it and does nothing else; an attempt that finds another still
+running (a worker Ray gave up on that has not died yet) waits for it to end, then looks again. Everything else
+it writes (checkpoints, val.json, test results) is written atomically by the trainer and the evaluation, and a
+killed attempt's successor resumes from ``checkpoints/last.pt`` and evaluates only what is missing. Everything
+a cell computes depends on its own settings and seeds: its torch thread count is set explicitly
+(:attr:`StudyConfig.threads`).
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ from typing import Any
 
 from cliport.errors import UserError
 from cliport.study.config import Cell, StudyConfig
+from cliport.study.lock import FileLock
 from cliport.study.report import summarise_run
 from cliport.utils.files import read_json, write_json
 from cliport.utils.run_dir import RunDir
@@ -45,7 +49,7 @@ class CellFiles:
         self.name = os.path.basename(run_dir)
         self.folder = os.path.join(config.task_dir(cell.task), "cells", self.name)
         self.result = os.path.join(self.folder, "result.json")
-        self.running = os.path.join(self.folder, "running.json")
+        self.lock = os.path.join(self.folder, ".lock")
         self.attempts = os.path.join(self.folder, "attempts.jsonl")
         self.log = os.path.join(self.folder, "log.txt")
 
@@ -93,6 +97,12 @@ def run_cell(config: StudyConfig, cell: Cell, progress: bool = True) -> dict[str
     done = files.record()
     if done is not None:
         return done
+    waiting = f"{cell.label()}: waiting for an earlier attempt that still runs"
+    with FileLock(files.lock, wait=True, waiting=waiting):
+        return files.record() or _attempt(config, cell, files, progress)
+
+
+def _attempt(config: StudyConfig, cell: Cell, files: CellFiles, progress: bool) -> dict[str, Any]:
     import torch
 
     torch.set_num_threads(config.threads)
@@ -108,7 +118,6 @@ def run_cell(config: StudyConfig, cell: Cell, progress: bool = True) -> dict[str
         "resume_step": resume_step(run),
     }
     files.log_event(start)
-    write_json(files.running, start)
     began = time.perf_counter()
     summary = _train_and_evaluate(config, cell, train_config, run, progress)
     minutes = round((time.perf_counter() - began) / 60, 2)
@@ -123,8 +132,6 @@ def run_cell(config: StudyConfig, cell: Cell, progress: bool = True) -> dict[str
     }
     write_json(files.result, record)  # the completion: an atomic rename
     files.log_event({"event": "done", "attempt": attempt, "pid": os.getpid(), "time": time.time(), "minutes": minutes})
-    if os.path.exists(files.running):
-        os.remove(files.running)
     return record
 
 

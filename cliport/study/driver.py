@@ -2,7 +2,7 @@
 results: each task's ``results.json``, ``table.md`` and plot as soon as its cells are done, and the table over
 tasks (``combined.md``) at the end.
 
-One driver per study folder (:class:`~cliport.study.lock.StudyLock`), and only with the settings the folder was
+One driver per study folder (:func:`~cliport.study.lock.study_lock`), and only with the settings the folder was
 started with (:func:`~cliport.study.config.check_settings`). The cells themselves are idempotent
 (:func:`~cliport.study.cells.run_cell`), so a driver that dies, or is killed, is simply run again.
 """
@@ -16,7 +16,7 @@ from typing import Any
 
 from cliport.study.cells import CellError, CellFiles, generate_demos, run_cell
 from cliport.study.config import SETTINGS_FILE, Cell, StudyConfig, check_settings
-from cliport.study.lock import StudyLock
+from cliport.study.lock import study_lock
 from cliport.study.report import row_score, task_results, write_combined, write_task_results
 from cliport.utils.files import write_json
 
@@ -78,7 +78,7 @@ def run_study(config: StudyConfig, progress: bool = True, wait: bool = False) ->
     config.eval_worker_count(config.test_episodes)
     if config.val_episodes > 0:
         config.eval_worker_count(config.val_episodes)
-    with StudyLock(config.out, wait):
+    with study_lock(config.out, wait):
         check_settings(config)
         write_json(os.path.join(config.out, SETTINGS_FILE), dataclasses.asdict(config))
         gather = _Gather(config, cells)

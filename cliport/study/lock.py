@@ -1,8 +1,9 @@
-"""One driver per study folder: an exclusive ``flock`` on ``OUT/.lock`` for as long as a driver runs.
+"""Exclusive ``flock`` locks on files in a study folder: ``OUT/.lock`` while a driver runs the study (one driver
+per folder), and ``cells/NAME/.lock`` while an attempt runs a cell (one attempt per cell at a time).
 
-The kernel drops the lock when the driver's process ends, however it ends, so a crash leaves no stale lock.
-On a shared filesystem the lock holds across machines where the filesystem supports ``flock`` (Linux NFS
-clients emulate it with byte-range locks).
+The kernel drops a lock when its process ends, however it ends, so a crash leaves no stale lock. On a shared
+filesystem the locks hold across machines where the filesystem supports ``flock`` (Linux NFS clients emulate
+it with byte-range locks). The lock file holds the holder's pid, host and start time, for messages.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ from typing import Any
 
 from cliport.errors import UserError
 
-LOCK_FILE = ".lock"
+STUDY_LOCK = ".lock"
 #: A status probe holds a shared lock for an instant: a driver retries this long before it refuses.
 _RETRY_SECONDS = 2.0
 
@@ -26,27 +27,33 @@ class StudyBusyError(UserError, RuntimeError):
     """Another driver is running the study in this folder."""
 
 
-def _describe(path: str) -> str:
+def _describe(holder: dict[str, Any] | None) -> str:
+    if not holder or not holder.get("pid"):
+        return "another process"
+    return f"pid {holder['pid']} on {holder['host']}"
+
+
+def _read_holder(path: str) -> dict[str, Any] | None:
     try:
         with open(path) as f:
-            holder = json.load(f)
-        return f"pid {holder['pid']} on {holder['host']}"
-    except (OSError, ValueError, KeyError):
-        return "another process"
+            return json.load(f)
+    except (OSError, ValueError):
+        return None
 
 
-class StudyLock:
-    """Hold the study folder's lock (``with StudyLock(out, wait):``). Busy: StudyBusyError, or, with ``wait``,
-    wait until the other driver ends."""
+class FileLock:
+    """Hold an exclusive lock on ``path`` (``with FileLock(path):``). Held elsewhere: ``busy(holder)`` (a
+    UserError) is raised after a short retry, or, with ``wait``, the lock is waited for (``waiting`` printed)."""
 
-    def __init__(self, folder: str, wait: bool = False) -> None:
-        self.folder = folder
-        self.path = os.path.join(folder, LOCK_FILE)
+    def __init__(self, path: str, wait: bool = False, busy: Any = None, waiting: str = "") -> None:
+        self.path = path
         self.wait = wait
+        self.busy = busy
+        self.waiting = waiting
         self.fd: int | None = None
 
-    def __enter__(self) -> StudyLock:
-        os.makedirs(self.folder, exist_ok=True)
+    def __enter__(self) -> FileLock:
+        os.makedirs(os.path.dirname(self.path) or ".", exist_ok=True)
         fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
         deadline = time.monotonic() + _RETRY_SECONDS
         told = False
@@ -55,19 +62,16 @@ class StudyLock:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
                 break
             except BlockingIOError:
-                if not self.wait and time.monotonic() > deadline:
+                late = time.monotonic() > deadline
+                if late and not self.wait:
                     os.close(fd)
-                    raise StudyBusyError(
-                        f"another cliport-reproduce ({_describe(self.path)}) is running the study in {self.folder}: "
-                        "wait for it to end, or pass --wait"
-                    ) from None
-                if self.wait and not told and time.monotonic() > deadline:
-                    print(f"waiting for the other driver ({_describe(self.path)}) of {self.folder}", file=sys.stderr)
+                    raise self.busy(_describe(_read_holder(self.path))) from None
+                if late and self.waiting and not told:
+                    print(f"{self.waiting} ({_describe(_read_holder(self.path))})", file=sys.stderr, flush=True)
                     told = True
                 time.sleep(0.2)
         os.ftruncate(fd, 0)
-        holder = {"pid": os.getpid(), "host": socket.gethostname(), "since": time.time()}
-        os.write(fd, json.dumps(holder).encode())
+        os.write(fd, json.dumps({"pid": os.getpid(), "host": socket.gethostname(), "since": time.time()}).encode())
         self.fd = fd
         return self
 
@@ -78,9 +82,20 @@ class StudyLock:
             self.fd = None
 
 
-def driver_holding(folder: str) -> dict[str, Any] | None:
-    """Who holds the folder's lock (pid, host, since), or None when no driver runs the study."""
-    path = os.path.join(folder, LOCK_FILE)
+def study_lock(folder: str, wait: bool = False) -> FileLock:
+    """The study folder's driver lock: a second driver refuses (StudyBusyError), or waits with ``wait``."""
+
+    def busy(holder: str) -> StudyBusyError:
+        return StudyBusyError(
+            f"another cliport-reproduce ({holder}) is running the study in {folder}: wait for it to end, or pass --wait"
+        )
+
+    waiting = f"waiting for the other driver of {folder} to end"
+    return FileLock(os.path.join(folder, STUDY_LOCK), wait=wait, busy=busy, waiting=waiting)
+
+
+def lock_holder(path: str) -> dict[str, Any] | None:
+    """Who holds the lock on ``path`` (pid, host, since), or None when nobody does."""
     try:
         fd = os.open(path, os.O_RDONLY)
     except FileNotFoundError:
@@ -89,12 +104,13 @@ def driver_holding(folder: str) -> dict[str, Any] | None:
         try:
             fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
         except BlockingIOError:
-            try:
-                with open(path) as f:
-                    return json.load(f)
-            except (OSError, ValueError):
-                return {"pid": None, "host": None, "since": None}
+            return _read_holder(path) or {"pid": None, "host": None, "since": None}
         fcntl.flock(fd, fcntl.LOCK_UN)
         return None
     finally:
         os.close(fd)
+
+
+def driver_holding(folder: str) -> dict[str, Any] | None:
+    """The driver running the study in ``folder`` (pid, host, since), or None."""
+    return lock_holder(os.path.join(folder, STUDY_LOCK))

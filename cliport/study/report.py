@@ -218,7 +218,7 @@ def combined_table(all_results: list[dict[str, Any]]) -> str:
 
     for (agent, recipe), tasks in blocks.items():
         lines += ["", f"## {agent}, {recipe or '-'} recipe", ""]
-        lines.append("| task | " + " | ".join(f"{n} demos" for n in counts) + " |")
+        lines.append("| task | " + " | ".join(f"{n} demo{'s' if n != 1 else ''}" for n in counts) + " |")
         lines.append("|---|" + "---|" * len(counts))
         for task, rows in tasks.items():
             lines.append(f"| {task} | " + " | ".join(fmt(rows.get(n)) for n in counts) + " |")

@@ -1,25 +1,22 @@
 """``cliport-reproduce --status OUT``: each cell of a study done, running or waiting, and the time left.
 
-Read from the folder alone (no Ray needed): a cell is done when it has its completion record, running when it
-has started an attempt and a driver holds the folder's lock, waiting otherwise (with the training step it would
-resume from, if it has one). The time left is the finished cells' mean duration times the work left, spread
-over the cells running at once.
+Read from the folder alone (no Ray needed): a cell is done when it has its completion record, running while
+an attempt holds its lock, waiting otherwise (an interrupted one says where it stopped). The time left is the
+finished cells' mean duration times the work left, spread over the cells running at once.
 """
 
 from __future__ import annotations
 
 import csv
 import os
-import socket
 import statistics
 import time
 from typing import Any
 
 from cliport.study.cells import CellFiles
 from cliport.study.config import StudyConfig, saved_config
-from cliport.study.lock import driver_holding
+from cliport.study.lock import driver_holding, lock_holder
 from cliport.study.report import row_score
-from cliport.utils.files import read_json
 from cliport.utils.run_dir import RunDir
 
 
@@ -36,23 +33,9 @@ def _trained_steps(run_dir: str) -> int:
         return 0
 
 
-def _alive_here(attempt: dict[str, Any]) -> bool | None:
-    """Whether the attempt's process lives (None when it ran on another host, where this cannot be seen)."""
-    if attempt.get("host") != socket.gethostname() or not attempt.get("pid"):
-        return None
-    try:
-        os.kill(int(attempt["pid"]), 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
-
-
 def cell_states(config: StudyConfig) -> list[dict[str, Any]]:
     """One dict per cell: task, agent, recipe, n_demos, seed, state (done/running/waiting), test, minutes,
     step (trained steps), detail."""
-    driver = driver_holding(config.out)
     rows = []
     for cell in config.cells():
         files = CellFiles(config, cell)
@@ -60,6 +43,7 @@ def cell_states(config: StudyConfig) -> list[dict[str, Any]]:
         record = files.record()
         step = config.n_steps if record else _trained_steps(files.run_dir)
         row["step"] = step
+        starts = [e for e in files.attempt_log() if e.get("event") == "start"]
         if record is not None:
             row["state"] = "done"
             row["test"] = row_score(record["summary"])[0]
@@ -68,23 +52,15 @@ def cell_states(config: StudyConfig) -> list[dict[str, Any]]:
                 row["detail"] = (
                     f"{record['attempt']} attempts, the last resumed from step {record['resumed_from_step']}"
                 )
-            rows.append(row)
-            continue
-        attempt = read_json(files.running) if os.path.exists(files.running) else None
-        training = f"step {step}/{config.n_steps}" if step < config.n_steps else "evaluating"
-        if attempt is not None and driver is not None:
+        elif lock_holder(files.lock) is not None:
             row["state"] = "running"
-            alive = _alive_here(attempt)
-            if alive is False:
-                row["state"] = "waiting"
-                row["detail"] = f"its worker died at {training}: Ray runs it again"
-            else:
-                elapsed = (time.time() - attempt["time"]) / 60
-                row["detail"] = f"{training}, attempt {attempt['attempt']}, {elapsed:.1f} min"
+            training = f"step {step}/{config.n_steps}" if step < config.n_steps else "evaluating"
+            elapsed = (time.time() - starts[-1]["time"]) / 60 if starts else 0.0
+            row["detail"] = f"{training}, attempt {len(starts)}, {elapsed:.1f} min"
         else:
             row["state"] = "waiting"
-            if step:
-                row["detail"] = f"resumes at its last checkpoint ({training} logged)"
+            if starts:
+                row["detail"] = f"interrupted at step {step}/{config.n_steps}: resumes at its last checkpoint"
         rows.append(row)
     return rows
 
@@ -94,7 +70,7 @@ def _duration(minutes: float) -> str:
     return f"{hours} h {rest} min" if hours else f"{rest} min"
 
 
-def time_left(rows: list[dict[str, Any]], n_steps: int, driver_running: bool) -> str:
+def time_left(rows: list[dict[str, Any]], n_steps: int) -> str:
     """The estimate's line: finished cells' mean minutes times the cells' work left (a running or interrupted
     cell counts by its untrained fraction), over the cells running at once."""
     done = [r["minutes"] for r in rows if r["state"] == "done" and r["minutes"] is not None]
@@ -105,7 +81,7 @@ def time_left(rows: list[dict[str, Any]], n_steps: int, driver_running: bool) ->
         return f"time left: unknown until a cell finishes ({len(left)} cells to go)"
     per_cell = statistics.mean(done)
     work = sum(per_cell * (1 - min(r["step"], n_steps) / n_steps) for r in left)
-    at_once = max(1, sum(r["state"] == "running" for r in rows)) if driver_running else 1
+    at_once = max(1, sum(r["state"] == "running" for r in rows))
     return (
         f"time left: about {_duration(work / at_once)} ({len(left)} cells to go, {per_cell:.1f} min per cell on "
         f"average over {len(done)} finished, {at_once} at a time)"
@@ -141,5 +117,5 @@ def status_report(out: str) -> str:
     ]
     widths = [max(len(line[i]) for line in table) for i in range(len(header))]
     lines += ["  ".join(v.ljust(w) for v, w in zip(line, widths, strict=True)).rstrip() for line in table]
-    lines += ["", time_left(rows, config.n_steps, driver is not None)]
+    lines += ["", time_left(rows, config.n_steps)]
     return "\n".join(lines)
