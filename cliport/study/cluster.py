@@ -37,8 +37,8 @@ def _import_ray(cluster: str) -> Any:
 
 
 def _check_reachable(address: str) -> None:
-    """ConfigError, quickly, unless something listens at ``address`` (HOST:PORT, or ray://HOST:PORT)."""
-    host, sep, port = address.removeprefix("ray://").rpartition(":")
+    """ConfigError, quickly, unless something listens at ``address`` (HOST:PORT)."""
+    host, sep, port = address.rpartition(":")
     if not sep or not host or not port.isdigit():
         raise ConfigError(f"--cluster must be none, local, auto or a Ray head's HOST:PORT, got {address!r}")
     try:
@@ -79,7 +79,12 @@ def connected(cluster: str, num_cpus: int) -> Iterator[Any]:
             ray.init(address=cluster, **quiet)
         except (ConnectionError, RuntimeError, ValueError) as e:
             first = (str(e).strip().splitlines() or [type(e).__name__])[0]
-            raise ConfigError(f"cannot join the Ray cluster at {cluster}: {first}") from None
+            hint = (
+                ""
+                if cluster == "auto"
+                else " (a cluster with token authentication also needs RAY_AUTH_MODE=token here)"
+            )
+            raise ConfigError(f"cannot join the Ray cluster at {cluster}: {first}{hint}") from None
     try:
         yield ray
     finally:

@@ -45,7 +45,8 @@ class _Gather:
         score = "-" if value is None else f"{value:.1f}"
         where = f"val-selected step {record['summary']['val_selected_step']}" if which == "val-selected" else which
         print(
-            f"[{self.n_done}/{len(self.cells)}] {cell.task} {cell.agent} {cell.recipe} {cell.n_demos} demos seed "
+            f"[{self.n_done}/{len(self.cells)}] {cell.task} {cell.agent} {cell.recipe} {cell.n_demos} "
+            f"demo{'s' if cell.n_demos != 1 else ''} seed "
             f"{cell.seed}: test {score} ({where} checkpoint), {record['minutes']:.1f} min",
             file=sys.stderr,
             flush=True,
@@ -72,6 +73,8 @@ def run_study(config: StudyConfig, progress: bool = True, wait: bool = False) ->
     from cliport.study.cluster import check_cluster
 
     check_cluster(config.cluster)
+    # The driver's machine decides the default, not each worker's.
+    config = dataclasses.replace(config, cell_cpus=config.resolved_cell_cpus())
     cells = config.cells()
     for cell in cells:
         CellFiles(config, cell)  # builds every run's train config: a bad setting fails before any work starts

@@ -204,7 +204,8 @@ def combined_table(all_results: list[dict[str, Any]]) -> str:
         "Each cell: ours / published (mean total reward x100 on test episodes). Ours is the test score of the",
         "checkpoint chosen on validation (marked * where a run had no validation: its last checkpoint), the mean",
         "over seeds ± their standard deviation; published is the score of the paper whose code trains with the",
-        "row's recipe (- where that paper has none). Each task's table.md has every checkpoint.",
+        "row's recipe (- where that paper has none; CLIPort's Table 6, beside the cliport recipe's Transporter, is on",
+        "validation episodes). Each task's table.md names every source and has every checkpoint.",
     ]
 
     def fmt(row: dict[str, Any] | None) -> str:

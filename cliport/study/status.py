@@ -2,7 +2,8 @@
 
 Read from the folder alone (no Ray needed): a cell is done when it has its completion record, running while
 an attempt holds its lock, waiting otherwise (an interrupted one says where it stopped). The time left is the
-finished cells' mean duration times the work left, spread over the cells running at once.
+finished cells' durations (those of the same task first) times the work left, spread over the cells running at
+once.
 """
 
 from __future__ import annotations
@@ -21,16 +22,18 @@ from cliport.utils.run_dir import RunDir
 
 
 def _trained_steps(run_dir: str) -> int:
-    """The last step metrics.csv logged (0 before the first row)."""
-    path = RunDir(run_dir).metrics
-    if not os.path.exists(path):
-        return 0
-    with open(path, newline="") as f:
-        rows = list(csv.DictReader(f))
-    try:
-        return int(rows[-1]["step"]) if rows else 0
-    except (KeyError, ValueError):
-        return 0
+    """How far a run has trained, as far as its files say without loading one: the last step metrics.csv
+    logged or the last scheduled checkpoint, whichever is later (0 before either)."""
+    run = RunDir(run_dir)
+    logged = 0
+    if os.path.exists(run.metrics):
+        with open(run.metrics, newline="") as f:
+            rows = list(csv.DictReader(f))
+        try:
+            logged = int(rows[-1]["step"]) if rows else 0
+        except (KeyError, ValueError):
+            logged = 0
+    return max([logged, *run.checkpoint_steps()])
 
 
 def cell_states(config: StudyConfig) -> list[dict[str, Any]]:
@@ -60,7 +63,10 @@ def cell_states(config: StudyConfig) -> list[dict[str, Any]]:
         else:
             row["state"] = "waiting"
             if starts:
-                row["detail"] = f"interrupted at step {step}/{config.n_steps}: resumes at its last checkpoint"
+                from cliport.study.cells import resume_step
+
+                row["step"] = resume_step(RunDir(files.run_dir))
+                row["detail"] = f"interrupted: resumes from step {row['step']}/{config.n_steps} (checkpoints/last.pt)"
         rows.append(row)
     return rows
 
@@ -71,20 +77,28 @@ def _duration(minutes: float) -> str:
 
 
 def time_left(rows: list[dict[str, Any]], n_steps: int) -> str:
-    """The estimate's line: finished cells' mean minutes times the cells' work left (a running or interrupted
-    cell counts by its untrained fraction), over the cells running at once."""
-    done = [r["minutes"] for r in rows if r["state"] == "done" and r["minutes"] is not None]
+    """The estimate's line: each cell left takes the mean minutes of the finished cells most like it (same task,
+    agent and recipe; else same task; else all) times its untrained fraction, over the cells running at once."""
+    done = [r for r in rows if r["state"] == "done" and r["minutes"] is not None]
     left = [r for r in rows if r["state"] != "done"]
     if not left:
         return "time left: none, every cell is done"
     if not done:
         return f"time left: unknown until a cell finishes ({len(left)} cells to go)"
-    per_cell = statistics.mean(done)
-    work = sum(per_cell * (1 - min(r["step"], n_steps) / n_steps) for r in left)
+
+    def minutes(row: dict[str, Any]) -> float:
+        for same in (("task", "agent", "recipe"), ("task",), ()):
+            like = [d["minutes"] for d in done if all(d[k] == row[k] for k in same)]
+            if like:
+                return statistics.mean(like)
+        raise AssertionError("unreachable: done is not empty")
+
+    work = sum(minutes(r) * (1 - min(r["step"], n_steps) / n_steps) for r in left)
     at_once = max(1, sum(r["state"] == "running" for r in rows))
+    mean = statistics.mean(d["minutes"] for d in done)
     return (
-        f"time left: about {_duration(work / at_once)} ({len(left)} cells to go, {per_cell:.1f} min per cell on "
-        f"average over {len(done)} finished, {at_once} at a time)"
+        f"time left: about {_duration(work / at_once)} ({len(left)} cells to go; the {len(done)} finished took "
+        f"{mean:.1f} min each on average; {at_once} at a time)"
     )
 
 

@@ -16,7 +16,8 @@ from cliport.study.config import SETTINGS_FILE, check_settings
 from cliport.study.lock import FileLock, StudyBusyError, driver_holding, lock_holder, study_lock
 from cliport.study.report import summarise_run, task_results
 from cliport.study.status import status_report
-from cliport.utils.files import write_json
+from cliport.utils.files import save_torch, write_json
+from cliport.utils.run_dir import RunDir
 
 
 def _config(out, **overrides) -> StudyConfig:
@@ -109,6 +110,7 @@ def test_status_says_done_running_and_waiting_with_the_time_left(tmp_path):
         os.makedirs(files.run_dir)
         with open(os.path.join(files.run_dir, "metrics.csv"), "w") as f:
             f.write(f"step,loss\n{step},1.0\n")
+        save_torch({"trainer": {"step": step - 4}}, RunDir(files.run_dir).checkpoint("last"))
     with FileLock(CellFiles(config, running).lock):
         report = status_report(str(tmp_path))
     lines = report.splitlines()
@@ -117,11 +119,11 @@ def test_status_says_done_running_and_waiting_with_the_time_left(tmp_path):
     assert ("block-insertion", "transporter_only", "ravens", "1", "0", "done") in rows
     assert "60.0  10.0     2 attempts, the last resumed from step 20" in report
     assert "running  -     -        step 10/40, attempt 1" in report
-    assert "waiting  -     -        interrupted at step 30/40: resumes at its last checkpoint" in report
-    # Left: 3/4 + 1/4 + 1 cells of 10 minutes, one running at a time.
-    assert (
-        lines[-1]
-        == "time left: about 20 min (3 cells to go, 10.0 min per cell on average over 1 finished, 1 at a time)"
+    assert "waiting  -     -        interrupted: resumes from step 26/40 (checkpoints/last.pt)" in report
+    # Left: the running cell 30/40 of its task's 10 minutes, the interrupted one 14/40 and the last one all of
+    # the overall mean's (no cell of their task is done), one running at a time.
+    assert lines[-1] == (
+        "time left: about 21 min (3 cells to go; the 1 finished took 10.0 min each on average; 1 at a time)"
     )
 
 
