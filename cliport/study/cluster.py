@@ -112,58 +112,53 @@ def _demo_task(config: StudyConfig, task: str, shard: int) -> dict[str, Any]:
     return generate_demos(config, task, shard, progress=False)
 
 
+def gpus_per_cell(ray: Any, config: StudyConfig) -> int:
+    """The GPUs each cell asks for on the connected cluster (1 where it has GPUs, unless --device cpu); a
+    ConfigError where the cluster cannot run the study's cells (no GPU for --device cuda, too few CPUs)."""
+    gpus = ray.cluster_resources().get("GPU", 0.0)
+    device = config.device or "auto"
+    if device.startswith("cuda") and gpus < 1:
+        raise ConfigError(f"--device {device} but the Ray cluster has no GPUs")
+    largest = _largest_node_cpus(ray)
+    for flag, value in (("--cell-cpus", config.resolved_cell_cpus()), ("--demo-workers", config.demo_workers)):
+        if value > largest:
+            raise ConfigError(f"{flag} {value} is more than the {largest:g} CPUs of the cluster's largest node")
+    return 1 if gpus >= 1 and device != "cpu" else 0
+
+
 def run_cells(
+    ray: Any,
     config: StudyConfig,
     cells: list[Cell],
     demo_tasks: list[str],
     finished: Callable[[Cell, dict[str, Any]], None],
 ) -> list[tuple[Cell, str]]:
-    """Run ``cells`` (none finished yet) as Ray tasks after the demos of ``demo_tasks``; ``finished(cell,
-    record)`` hears of each completion as it comes. Returns the failed cells with their error line."""
-    with connected(config.cluster, _usable_cores()) as ray:
-        gpus = ray.cluster_resources().get("GPU", 0.0)
-        device = config.device or "auto"
-        if device.startswith("cuda") and gpus < 1:
-            raise ConfigError(f"--device {device} but the Ray cluster has no GPUs")
-        largest = _largest_node_cpus(ray)
-        for flag, value in (("--cell-cpus", config.resolved_cell_cpus()), ("--demo-workers", config.demo_workers)):
-            if value > largest:
-                raise ConfigError(f"{flag} {value} is more than the {largest:g} CPUs of the cluster's largest node")
-        num_gpus = 1 if gpus >= 1 and device != "cpu" else 0
-        demo_remote = ray.remote(max_calls=1)(_demo_task).options(
-            num_cpus=config.demo_workers, max_retries=config.retries
-        )
-        cell_remote = ray.remote(max_calls=1)(_cell_task).options(
-            num_cpus=config.resolved_cell_cpus(), num_gpus=num_gpus, max_retries=config.retries
-        )
-        demos = {
-            task: [demo_remote.remote(config, task, shard) for shard in range(config.demo_shards)]
-            for task in demo_tasks
-        }
-        pending = {cell_remote.remote(config, cell, *demos[cell.task]): cell for cell in cells}
-        failed: list[tuple[Cell, str]] = []
-        while pending:
-            # Bounded: a Ctrl-C is seen within a second.
-            ready, _ = ray.wait(list(pending), num_returns=1, timeout=1.0)
-            for ref in ready:
-                cell = pending.pop(ref)
-                try:
-                    record = ray.get(ref)
-                except Exception as e:  # the cell's own error, or Ray's when its worker died too often
-                    failed.append((cell, _error_line(e, CellFiles(config, cell).log)))
-                    print(f"cell failed: {cell.label()}: {failed[-1][1]}", file=sys.stderr, flush=True)
-                    continue
-                finished(cell, record)
-        return failed
+    """Run ``cells`` (none finished yet) as Ray tasks on the connected ``ray`` (:func:`connected`), after the
+    demos of ``demo_tasks``; ``finished(cell, record)`` hears of each completion as it comes. Returns the failed
+    cells with their error line."""
+    demo_remote = ray.remote(max_calls=1)(_demo_task).options(num_cpus=config.demo_workers, max_retries=config.retries)
+    cell_remote = ray.remote(max_calls=1)(_cell_task).options(
+        num_cpus=config.resolved_cell_cpus(), num_gpus=gpus_per_cell(ray, config), max_retries=config.retries
+    )
+    demos = {task: [demo_remote.remote(config, task, i) for i in range(config.demo_shards)] for task in demo_tasks}
+    pending = {cell_remote.remote(config, cell, *demos[cell.task]): cell for cell in cells}
+    failed: list[tuple[Cell, str]] = []
+    while pending:
+        # Bounded: a Ctrl-C is seen within a second.
+        ready, _ = ray.wait(list(pending), num_returns=1, timeout=1.0)
+        for ref in ready:
+            cell = pending.pop(ref)
+            try:
+                record = ray.get(ref)
+            except Exception as e:  # the cell's own error, or Ray's when its worker died too often
+                failed.append((cell, _error_line(e, CellFiles(config, cell).log)))
+                print(f"cell failed: {cell.label()}: {failed[-1][1]}", file=sys.stderr, flush=True)
+                continue
+            finished(cell, record)
+    return failed
 
 
 def _error_line(error: BaseException, log: str) -> str:
     cause = getattr(error, "cause", None) or error  # a RayTaskError wraps the task's exception
     first = (str(cause).strip().splitlines() or [type(cause).__name__])[0]
     return f"{type(cause).__name__}: {first} (log: {log})"
-
-
-def _usable_cores() -> int:
-    from cliport.evaluation.engine import usable_cores
-
-    return usable_cores()

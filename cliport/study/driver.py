@@ -9,6 +9,7 @@ started with (:func:`~cliport.study.config.check_settings`). The cells themselve
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
 import sys
@@ -81,8 +82,15 @@ def run_study(config: StudyConfig, progress: bool = True, wait: bool = False) ->
     config.eval_worker_count(config.test_episodes)
     if config.val_episodes > 0:
         config.eval_worker_count(config.val_episodes)
-    with study_lock(config.out, wait):
+    with study_lock(config.out, wait), contextlib.ExitStack() as stack:
         check_settings(config)
+        ray = None
+        if config.cluster != "none":  # joined before the folder records anything: a failed join leaves it as it was
+            from cliport.evaluation.engine import usable_cores
+            from cliport.study.cluster import connected, gpus_per_cell
+
+            ray = stack.enter_context(connected(config.cluster, usable_cores()))
+            gpus_per_cell(ray, config)
         write_json(os.path.join(config.out, SETTINGS_FILE), dataclasses.asdict(config))
         gather = _Gather(config, cells)
         gather.write_finished_tasks()
@@ -106,7 +114,7 @@ def run_study(config: StudyConfig, progress: bool = True, wait: bool = False) ->
                 config, out=os.path.abspath(config.out), data_dir=os.path.abspath(config.data_dir)
             )
             demo_tasks = list(dict.fromkeys(cell.task for cell in todo))
-            failed = run_cells(anywhere, todo, demo_tasks, gather.finished)
+            failed = run_cells(ray, anywhere, todo, demo_tasks, gather.finished)
         finished = [gather.results[task] for task in config.study_tasks() if task in gather.results]
         write_combined(config.out, finished)
         if failed:

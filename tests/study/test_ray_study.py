@@ -2,7 +2,6 @@
 the same rows and weights as the serial study, and every cell done exactly once when a worker running a cell,
 and then the driver, are killed mid-training."""
 
-import json
 import os
 import signal
 import subprocess
@@ -73,10 +72,8 @@ def test_ray_gives_the_serial_rows(demos, cluster, tmp_path, capsys):
     for task in TASKS:
         rows = read_json(os.path.join(serial, task, "results.json"))
         assert rows == read_json(os.path.join(on_ray, task, "results.json"))
-        assert [(r["n_demos"], [c["step"] for c in r["checkpoints"]]) for r in rows["runs"]] == [
-            (1, [2, 4]),
-            (2, [2, 4]),
-        ]
+        assert [(r["n_demos"], r["val_selected_step"]) for r in rows["runs"]] == [(1, 4), (2, 4)]
+        assert all(r["checkpoints"][0]["val"] is not None for r in rows["runs"])
     assert read_json(os.path.join(serial, "combined.json")) == read_json(os.path.join(on_ray, "combined.json"))
     # The weights too, bit for bit: each cell's torch threads are its own, not its worker's.
     import torch
@@ -111,19 +108,20 @@ def _wait_for(what, driver, timeout=300.0):
         found = what()
         if found:
             return found
-        assert driver.poll() is None, driver.communicate()
+        assert driver.poll() is None, "the driver ended before it was killed"
         time.sleep(0.1)
     raise AssertionError("timed out")
 
 
-def test_killed_worker_and_driver_lose_nothing_and_repeat_nothing(demos, cluster, tmp_path, capsys):
+def test_killed_worker_and_driver_lose_nothing_and_repeat_nothing(demos, cluster, tmp_path):
     out = str(tmp_path / "s")
-    argv = [*TINY, "--data-dir", demos, "--out", out, "--n-steps", "16", "--checkpoint-steps", "16",
+    # Two cells (one per task), trained at once on the 2 CPUs: one loses its worker, then the other its driver.
+    argv = [*TINY, "--n-demos", "2", "--data-dir", demos, "--out", out, "--n-steps", "20", "--checkpoint-steps", "20",
             "--val-episodes", "0", "--train-option", "save_last_every=2", "--train-option", "log_every=2"]  # fmt: skip
+    log = open(tmp_path / "driver.log", "w")
     driver = subprocess.Popen(
-        [sys.executable, "-m", "cliport.cli.reproduce", *argv, "--cluster", cluster],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )  # fmt: skip
+        [sys.executable, "-m", "cliport.cli.reproduce", *argv, "--cluster", cluster], stdout=log, stderr=log
+    )
     try:
         config = _wait_for(lambda: os.path.exists(os.path.join(out, "study_config.json")) and saved_config(out), driver)
         # A Ray worker dies mid-training: Ray runs its cell again, from the step it had saved.
@@ -137,6 +135,7 @@ def test_killed_worker_and_driver_lose_nothing_and_repeat_nothing(demos, cluster
         if driver.poll() is None:
             driver.kill()
             driver.wait()
+        log.close()
     assert CellFiles(config, driver_cell).record() is None  # it was still training
     _study([*argv, "--cluster", cluster])
     events = _done_events(config)
@@ -148,9 +147,8 @@ def test_killed_worker_and_driver_lose_nothing_and_repeat_nothing(demos, cluster
     assert len(driver_starts) >= 2 and driver_starts[-1]["resume_step"] >= driver_step > 0
     for task in TASKS:
         rows = read_json(os.path.join(out, task, "results.json"))["runs"]
-        assert [(r["n_demos"], r["checkpoints"][-1]["step"]) for r in rows] == [(1, 16), (2, 16)]
+        assert [(r["n_demos"], r["checkpoints"][-1]["step"]) for r in rows] == [(2, 20)]
     records = [CellFiles(config, cell).record() for cell in config.cells()]
     assert max(r["attempt"] for r in records) >= 2 and all(r["summary"]["test_at_last"] is not None for r in records)
     report = status_report(out)
-    assert "4 cells, 4 done" in report and "attempts, the last resumed from step" in report
-    json.dumps(records)
+    assert "2 cells, 2 done" in report and "attempts, the last resumed from step" in report
