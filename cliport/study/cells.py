@@ -44,9 +44,8 @@ class CellFiles:
     """The paths of one cell's records (see the module docstring)."""
 
     def __init__(self, config: StudyConfig, cell: Cell) -> None:
-        run_dir = config.train_config(cell.agent, cell.n_demos, cell.seed, cell.recipe, cell.task).run_dir
-        self.run_dir = run_dir
-        self.name = os.path.basename(run_dir)
+        self.run_dir = config.run_dir(cell)
+        self.name = os.path.basename(self.run_dir)
         self.folder = os.path.join(config.task_dir(cell.task), "cells", self.name)
         self.result = os.path.join(self.folder, "result.json")
         self.lock = os.path.join(self.folder, ".lock")

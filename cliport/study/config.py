@@ -149,6 +149,12 @@ class StudyConfig:
             return resolve_workers(self.eval_workers, n_episodes, "--eval-workers")
         return max(1, min(self.resolved_cell_cpus(), n_episodes))
 
+    def run_dir(self, cell: Cell) -> str:
+        """The cell's run folder: TASK_DIR/runs/AGENT-RECIPE-nN, with -sSEED when the study has several seeds."""
+        suffix = f"-s{cell.seed}" if len(self.training_seeds()) > 1 else ""
+        name = f"{cell.agent}-{cell.recipe}-n{cell.n_demos}{suffix}"
+        return os.path.join(self.task_dir(cell.task), "runs", name)
+
     def train_config(
         self,
         agent: str,
@@ -162,7 +168,6 @@ class StudyConfig:
         seed = self.seed if seed is None else seed
         recipe = recipe or self.agent_recipes(agent)[0]
         task = task or self.study_tasks()[0]
-        suffix = f"-s{seed}" if len(self.training_seeds()) > 1 else ""
         from cliport.agents import agent_class
 
         fields = {f.name for f in dataclasses.fields(agent_class(agent).config_class)}
@@ -182,7 +187,7 @@ class StudyConfig:
             "n_demos": n_demos,
             "n_steps": self.n_steps,
             "data_dir": self.data_dir,
-            "run_dir": os.path.join(self.task_dir(task), "runs", f"{agent}-{recipe}-n{n_demos}{suffix}"),
+            "run_dir": self.run_dir(Cell(task, agent, recipe, n_demos, seed)),
             "recipe": recipe,
             "seed": seed,
             "val_episodes": self.val_episodes,

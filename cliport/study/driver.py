@@ -45,10 +45,11 @@ class _Gather:
         value, _, which = row_score(record["summary"])
         score = "-" if value is None else f"{value:.1f}"
         where = f"val-selected step {record['summary']['val_selected_step']}" if which == "val-selected" else which
+        demos = f"{cell.n_demos} demo{'s' if cell.n_demos != 1 else ''}"
+        line = f"{cell.task} {cell.agent} {cell.recipe} {demos} seed {cell.seed}"
+        minutes = record["minutes"]
         print(
-            f"[{self.n_done}/{len(self.cells)}] {cell.task} {cell.agent} {cell.recipe} {cell.n_demos} "
-            f"demo{'s' if cell.n_demos != 1 else ''} seed "
-            f"{cell.seed}: test {score} ({where} checkpoint), {record['minutes']:.1f} min",
+            f"[{self.n_done}/{len(self.cells)}] {line}: test {score} ({where} checkpoint), {minutes:.1f} min",
             file=sys.stderr,
             flush=True,
         )
@@ -77,8 +78,8 @@ def run_study(config: StudyConfig, progress: bool = True, wait: bool = False) ->
     # The driver's machine decides the default, not each worker's.
     config = dataclasses.replace(config, cell_cpus=config.resolved_cell_cpus())
     cells = config.cells()
-    for cell in cells:
-        CellFiles(config, cell)  # builds every run's train config: a bad setting fails before any work starts
+    for cell in cells:  # every run's train config: a bad setting fails before any work starts
+        config.train_config(cell.agent, cell.n_demos, cell.seed, cell.recipe, cell.task)
     config.eval_worker_count(config.test_episodes)
     if config.val_episodes > 0:
         config.eval_worker_count(config.val_episodes)

@@ -44,12 +44,17 @@ def demos(tmp_path_factory):
 def cluster():
     """A 2-CPU Ray started in this process (the study joins it: `--cluster local` uses a Ray already started
     here, a driver in another process joins it by address); shut down at the end, workers and all."""
+    before = os.environ.get("RAY_AUTH_MODE")  # Ray 2.59+ turns token authentication on in this process's environ
     ray.init(num_cpus=2, include_dashboard=False, logging_level="ERROR", log_to_driver=False,
              object_store_memory=100 * 1024**2)  # fmt: skip
     try:
         yield ray.get_runtime_context().gcs_address
     finally:
         ray.shutdown()
+        if before is None:
+            os.environ.pop("RAY_AUTH_MODE", None)
+        else:
+            os.environ["RAY_AUTH_MODE"] = before
 
 
 def _study(argv):
