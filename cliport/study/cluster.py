@@ -161,4 +161,6 @@ def run_cells(
 def _error_line(error: BaseException, log: str) -> str:
     cause = getattr(error, "cause", None) or error  # a RayTaskError wraps the task's exception
     first = (str(cause).strip().splitlines() or [type(cause).__name__])[0]
-    return f"{type(cause).__name__}: {first} (log: {log})"
+    # A failed argument (its task's demo shard) fails the cell before it starts, with that error as its cause.
+    where = "while generating its task's demos" if "could not be computed" in str(error) else f"log: {log}"
+    return f"{type(cause).__name__}: {first} ({where})"
