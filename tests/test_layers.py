@@ -47,7 +47,8 @@ LAYERS: dict[str, tuple[str, ...]] = {
         "cliport.agents", "cliport.evaluation",
     ),
     "cliport.study": (
-        "cliport.errors", "cliport.utils", "cliport.data", "cliport.agents", "cliport.train", "cliport.evaluation",
+        "cliport.errors", "cliport.utils", "cliport.tasks", "cliport.data", "cliport.agents", "cliport.train",
+        "cliport.evaluation",
     ),
     "cliport.cli": (
         "cliport", "cliport.errors", "cliport.utils", "cliport.env", "cliport.tasks", "cliport.data",

@@ -29,6 +29,11 @@ TABLES = {
 }
 
 
+def published_task_name(task: str) -> str:
+    """The name CLIPort's Table 1 gives our task ``task`` (most are the same)."""
+    return _CLIPORT_NAMES.get(task, task)
+
+
 @cache
 def published_results() -> dict[str, Any]:
     """The published tables (see the file's ``_about``)."""
@@ -63,7 +68,7 @@ def published_scores(task: str, agent: str, n_demos: int) -> list[dict[str, Any]
         steps, label = TABLES[table]
         if table == "cliport_table6_val_ravens" and column == "cliport_wo_lang":
             label = "CLIPort Table 6 (no language), validation"
-        name = _CLIPORT_NAMES.get(task, task) if table == "cliport_table1_test" else task
+        name = published_task_name(task) if table == "cliport_table1_test" else task
         value = data.get(table, {}).get(name, {}).get(column, {}).get(str(n_demos))
         if value is not None:
             out.append({"source": label, "score": float(value), "training_steps": steps, "table": table})

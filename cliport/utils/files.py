@@ -39,6 +39,16 @@ def write_json(path: str | os.PathLike[str], data: Any) -> None:
     _atomic_write(path, lambda f: f.write(text))
 
 
+def write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
+    """Write ``data``, atomically."""
+    _atomic_write(path, lambda f: f.write(data))
+
+
+def write_text(path: str | os.PathLike[str], text: str) -> None:
+    """Write ``text`` (UTF-8), atomically."""
+    write_bytes(path, text.encode())
+
+
 def read_json(path: str | os.PathLike[str]) -> Any:
     with open(path) as f:
         return json.load(f)
