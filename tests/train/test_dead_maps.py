@@ -2,25 +2,60 @@ import functools
 import math
 
 import pytest
+import torch
 
 from cliport.train.config import TrainConfig
 from cliport.train.dead_maps import DeadMapError, DeadMapWatch
 from cliport.train.trainer import train
 
 
+def _terms(pick: float, place: float) -> torch.Tensor:
+    """One step's (3,) float32 terms, as a training step leaves them on the device."""
+    return torch.tensor([pick + place, pick, place], dtype=torch.float32)
+
+
 def test_a_repeated_loss_stops_after_patience_and_names_the_net() -> None:
     watch = DeadMapWatch(patience=3)
     for step, place in enumerate([9.1, 8.7, 10.84349, 10.84349, 10.84349], start=1):
-        watch.observe(step, {"pick_loss": 10.0 - step / 10, "place_loss": place})
+        watch.observe(_terms(10.0 - step / 10, place))
+        watch.check()
+    watch.observe(_terms(9.3, 10.84349))
     with pytest.raises(DeadMapError, match=r"step 6: the place net's output has been constant since step 3"):
-        watch.observe(6, {"pick_loss": 9.3, "place_loss": 10.84349})
+        watch.check()
+
+
+def test_a_dead_map_is_reported_at_the_step_it_was_found_when_read_later() -> None:
+    """The trainer reads the watch every log_every steps: the message names the step the map was found dead
+    at, counted from the resumed run's start, whatever the later steps did."""
+    watch = DeadMapWatch(patience=3, start_step=100)
+    for step, pick in enumerate([5.0, 5.0, 5.0, 5.0, 4.0, 3.0], start=1):
+        watch.observe(_terms(pick, 7.0 + step))
+    with pytest.raises(DeadMapError, match=r"step 104: the pick net's output has been constant since step 101"):
+        watch.check()
 
 
 def test_a_loss_that_moves_again_resets_the_count() -> None:
     watch = DeadMapWatch(patience=3)
     losses = [5.0, 5.0, 5.0, 5.1, 5.1, 5.1, 4.0, 4.0, 4.0]  # never 3 steps past the first repeat
     for step, value in enumerate(losses, start=1):
-        watch.observe(step, {"pick_loss": value, "place_loss": 7.0 + step})
+        watch.observe(_terms(value, 7.0 + step))
+    watch.check()
+
+
+def test_float32_neighbours_count_as_the_same_loss_and_1e_5_apart_do_not() -> None:
+    """The tolerance is 1e-6 on float32 losses near ln(cells) ~ 10.8, where neighbouring float32 values are
+    ~1e-6 apart: one ulp is the same loss, ten are not."""
+    value = torch.tensor(10.84349, dtype=torch.float32)
+    ulp = torch.nextafter(value, torch.tensor(11.0)) - value
+    watch = DeadMapWatch(patience=2)
+    for k in (0, 1, 0):
+        watch.observe(_terms(1.0 + k, float(value + k * ulp)))
+    with pytest.raises(DeadMapError, match="place net"):
+        watch.check()
+    watch = DeadMapWatch(patience=2)
+    for k in (0, 10, 0):
+        watch.observe(_terms(1.0 + k, float(value + k * ulp)))
+    watch.check()
 
 
 def test_training_stops_when_the_place_map_goes_constant(
