@@ -118,7 +118,10 @@ class TrainStep:
         self.graphs = graphs and self.device.type in CAPTURE_DEVICES
         self.loss_fn: Callable[..., tuple[torch.Tensor, torch.Tensor]] = agent.loss_terms
         if compile:
-            self.loss_fn = torch.compile(agent.loss_terms, dynamic=False)
+            # No channels_last re-layout of the convolutions on the CPU: PyTorch 2.14's channels_last convolution
+            # backward corrupts the heap there (seen compiling transporter_only at width 0.125).
+            options = {"layout_optimization": False} if self.device.type == "cpu" else None
+            self.loss_fn = torch.compile(agent.loss_terms, dynamic=False, options=options)
         #: Why capturing failed (then every step is eager), or None.
         self.failed: str | None = None
         #: Steps run so far by replaying the graph, and eagerly (warm-up steps and fall-backs included).

@@ -324,6 +324,10 @@ def train(
         if tensorboard is not None:
             tensorboard.close()
     summary: dict[str, Any] = {"run_dir": run.root, "steps": step, "checkpoints": run.checkpoint_steps()}
+    # How this process's steps ran: replays of the captured CUDA graph, eager steps (warm-up included).
+    summary["step_kinds"] = {"graph_replays": train_step.replays, "eager": train_step.eager_steps}
+    if train_step.failed:
+        summary["step_kinds"]["capture_failed"] = train_step.failed
     if rank == 0 and validator is not None:
         summary["validation"] = validator.finish()
     if world > 1:
