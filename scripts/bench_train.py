@@ -41,6 +41,7 @@ from cliport.data.episode_io import dataset_dir, episode_path, save_episode  # n
 from cliport.env.transforms import yaw_to_quat  # noqa: E402
 from cliport.train.config import TrainConfig  # noqa: E402
 from cliport.train.loader import training_loader  # noqa: E402
+from cliport.train.recipes import get_recipe  # noqa: E402
 from cliport.train.trainer import train  # noqa: E402
 
 TASK = "place-red-in-green"
@@ -128,7 +129,7 @@ def time_training(args: argparse.Namespace, agent: str, batch_size: int, data_di
         torch.cuda.reset_peak_memory_stats(device)
     summary = train(_config(args, agent, batch_size, (1 + windows) * args.log_every, data_dir, run_dir), progress=False)
     rows = _rows(run_dir)[1:]
-    seconds = sum(row["step"] and args.log_every / row["steps_per_second"] for row in rows)
+    seconds = sum(args.log_every / row["steps_per_second"] for row in rows)
     steps = len(rows) * args.log_every
     out: dict[str, Any] = {
         "steps_per_s": steps / seconds,
@@ -153,8 +154,14 @@ def profile_training(args: argparse.Namespace, agent: str, batch_size: int, data
     activities = [ProfilerActivity.CPU, ProfilerActivity.CUDA] if cuda else [ProfilerActivity.CPU]
     run_dir = os.path.join(root, f"profile-{agent}-b{batch_size}")
     n_steps = args.log_every + active + 1
-    with profile(activities=activities, schedule=schedule(wait=args.log_every - 1, warmup=1, active=active)) as prof:
-        train(_config(args, agent, batch_size, n_steps, data_dir, run_dir), progress=False, step_hook=lambda _: prof.step())
+    with profile(
+        activities=activities, schedule=schedule(wait=args.log_every - 1, warmup=1, active=active, repeat=1)
+    ) as prof:
+        train(
+            _config(args, agent, batch_size, n_steps, data_dir, run_dir),
+            progress=False,
+            step_hook=lambda _: prof.step(),
+        )
     events = prof.key_averages()
     attr = "self_device_time_total" if cuda else "self_cpu_time_total"
     total = sum(max(getattr(e, attr), 0.0) for e in events)
@@ -163,7 +170,12 @@ def profile_training(args: argparse.Namespace, agent: str, batch_size: int, data
         "device": "cuda" if cuda else "cpu",
         "steps": active,
         "top_ops": [
-            {"op": e.key, "calls": e.count, "ms_per_step": getattr(e, attr) / 1e3 / active, "share": getattr(e, attr) / total}
+            {
+                "op": e.key,
+                "calls": e.count,
+                "ms_per_step": getattr(e, attr) / 1e3 / active,
+                "share": getattr(e, attr) / total,
+            }
             for e in top
             if total > 0
         ],
@@ -172,8 +184,13 @@ def profile_training(args: argparse.Namespace, agent: str, batch_size: int, data
 
 def time_loader(args: argparse.Namespace, data_dir: str, batches: int = 200) -> dict[str, Any]:
     """Samples/s the trainer's loader serves alone at batch 1 (after its first batch), as configured."""
-    dataset = DemoDataset(data_dir, TASK, "train", args.n_demos, seed=0)
-    loader = training_loader(dataset, 1, args.n_rotations, args.num_workers, seed=0, pin_memory=_device(args).type == "cuda")
+    recipe = get_recipe(args.recipe)
+    dataset = DemoDataset(
+        data_dir, TASK, "train", args.n_demos, aug_pivot=recipe.aug_pivot, aug_interpolation=recipe.aug_interpolation
+    )
+    loader = training_loader(
+        dataset, 1, args.n_rotations, args.num_workers, seed=0, pin_memory=_device(args).type == "cuda"
+    )
     it = iter(loader)
     next(it)
     start = time.perf_counter()
@@ -186,8 +203,7 @@ def time_loader(args: argparse.Namespace, data_dir: str, batches: int = 200) -> 
 
 def time_act(args: argparse.Namespace, agent: str) -> dict[str, Any]:
     device = _device(args)
-    model = bench_model.make_bench_agent(agent, args.width, device)
-    model.config.n_rotations  # noqa: B018 - built with the agent's defaults (36 rotations, 64-pixel crops)
+    model = bench_model.make_bench_agent(agent, args.width, device)  # 36 rotations, 64-pixel crops
     latency = bench_model._act_latency(model, args.act_repeats, device, "none")
     del model
     return {"act_ms": latency * 1e3, "repeats": args.act_repeats}
@@ -204,7 +220,16 @@ def run_reference(args: argparse.Namespace, agents: list[str]) -> dict[str, Any]
         return {"error": "none of the benchmarked agents has a reference counterpart"}
     with tempfile.TemporaryDirectory() as tmp:
         out = os.path.join(tmp, "ref.json")
-        command = [sys.executable, script, "--device", _device(args).type, "--steps", str(args.reference_steps), "--out", out]
+        command = [
+            sys.executable,
+            script,
+            "--device",
+            _device(args).type,
+            "--steps",
+            str(args.reference_steps),
+            "--out",
+            out,
+        ]
         command += ["--agent", names[0] if len(names) == 1 else "both"]
         env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"} | {"PYTHONPATH": _reference_path(args)}
         start = time.perf_counter()
@@ -213,7 +238,14 @@ def run_reference(args: argparse.Namespace, agents: list[str]) -> dict[str, Any]
             return {"error": f"ref_bench.py exited with {done.returncode}: {done.stderr.strip()[-1500:]}"}
         with open(out) as f:
             result = json.load(f)
-    keep = ("train_step_s", "train_samples_per_s", "act_s", "train_peak_mem_gib", "act_peak_mem_gib", "params_trainable")
+    keep = (
+        "train_step_s",
+        "train_samples_per_s",
+        "act_s",
+        "train_peak_mem_gib",
+        "act_peak_mem_gib",
+        "params_trainable",
+    )
     report: dict[str, Any] = {"seconds": time.perf_counter() - start, "command": " ".join(command[1:])}
     for name, values in result.items():
         report[name] = {k: values.get(k) for k in keep if k in values}
@@ -253,7 +285,9 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--width", type=float, help="channel-width multiplier (CUDA 1, the published size; CPU 0.125)")
     parser.add_argument("--batch-sizes", type=int, nargs="+", help="training batch sizes (CUDA 1 8; CPU 1)")
     parser.add_argument("--steps", type=int, help="timed training steps per configuration (CUDA 100; CPU 4)")
-    parser.add_argument("--log-every", type=int, help="steps per metrics row; the first row is left out (CUDA 20; CPU 2)")
+    parser.add_argument(
+        "--log-every", type=int, help="steps per metrics row; the first row is left out (CUDA 20; CPU 2)"
+    )
     parser.add_argument("--n-rotations", type=int, help="place rotations (CUDA 36, the published count; CPU 8)")
     parser.add_argument("--crop-size", type=int, default=64)
     parser.add_argument("--recipe", default="cliport", help="training recipe (the reference's code: cliport)")
@@ -266,8 +300,12 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--no-act", action="store_true", help="skip the act() timing")
     parser.add_argument("--reference-dir", help="the reference CLIPort folder holding ref_bench.py")
     parser.add_argument("--reference-steps", type=int, default=10, help="ref_bench.py's --steps")
-    parser.add_argument("--profile", action="store_true", help=f"add the top {PROFILE_ROWS} operations per profiled run")
-    parser.add_argument("--profile-batch-sizes", type=int, nargs="+", help="batch sizes to profile (default: the first)")
+    parser.add_argument(
+        "--profile", action="store_true", help=f"add the top {PROFILE_ROWS} operations per profiled run"
+    )
+    parser.add_argument(
+        "--profile-batch-sizes", type=int, nargs="+", help="batch sizes to profile (default: the first)"
+    )
     parser.add_argument("--out", help="also write the JSON here")
     return parser
 
@@ -332,9 +370,8 @@ def main() -> None:
         reference = run_reference(args, args.agents)
         report["reference"] = reference
         report["ratio_to_reference"] = ratios(report, reference)
-        report["ratio_note"] = (
-            "ours / the reference's at batch 1 (train samples/s) and reference act time / ours"
-            + ("" if args.width == 1.0 else f"; ours ran at width {args.width}, the reference at the published size")
+        report["ratio_note"] = "ours / the reference's at batch 1 (train samples/s) and reference act time / ours" + (
+            "" if args.width == 1.0 else f"; ours ran at width {args.width}, the reference at the published size"
         )
     text = json.dumps(report, indent=2)
     if args.out:
