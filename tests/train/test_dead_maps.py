@@ -1,5 +1,6 @@
 import functools
 import math
+import os
 
 import pytest
 import torch
@@ -62,7 +63,8 @@ def test_training_stops_when_the_place_map_goes_constant(
     tmp_path, make_synthetic_dataset, monkeypatch, tiny_config
 ) -> None:
     """A key net that outputs zeros makes every place logit zero, as a dead FusionConv does: the loss is
-    ln(cells) at every step and the run stops with the error instead of training on."""
+    ln(cells) at every step and the run stops with the error instead of training on: at the first metrics row
+    after the map was found dead (step 6, log_every 3), naming the step it was found at (4)."""
     from cliport import agents
 
     make_synthetic_dataset(str(tmp_path), n_episodes=2)
@@ -79,7 +81,7 @@ def test_training_stops_when_the_place_map_goes_constant(
     overrides = {
         "agent": "transporter_only", "task": "place-red-in-green", "n_demos": 2, "n_steps": 20, "batch_size": 1,
         "data_dir": str(tmp_path), "run_dir": str(tmp_path / "run"), "device": "cpu", "num_workers": 0,
-        "val_episodes": 0, "checkpoint_steps": [20], "checkpoint_every": 0,
+        "val_episodes": 0, "checkpoint_steps": [20], "checkpoint_every": 0, "log_every": 3,
         "agent_config": tiny_config("transporter_only", n_rotations=4),
     }  # fmt: skip
     with pytest.raises(DeadMapError) as caught:
@@ -88,3 +90,6 @@ def test_training_stops_when_the_place_map_goes_constant(
     assert message.startswith("step 4: the place net's output has been constant since step 1")
     cells = float(message.split("its loss is ")[1].split(",")[0])
     assert math.isclose(cells, math.log(4 * 320 * 160), abs_tol=1e-4)
+    with open(tmp_path / "run" / "metrics.csv") as f:
+        assert [row.split(",")[0] for row in f.read().split()[1:]] == ["3"]  # stopped at the row of step 6
+    assert not os.path.exists(tmp_path / "run" / "checkpoints" / "last.pt")
