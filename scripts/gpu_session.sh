@@ -18,7 +18,7 @@
 # two there).
 #
 # Before the session, in the repository root:
-#   echo /.gpu/ >> .git/info/exclude; mkdir -p .whl .gpu
+#   mkdir -p .whl .gpu   # both ignored by .gitignore
 #   pip download --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
 #     --platform manylinux2014_x86_64 --platform manylinux_2_17_x86_64 --platform manylinux_2_28_x86_64 -d .whl \
 #     open_clip_torch ftfy wcwidth regex gymnasium cloudpickle farama-notifications tensorboard \
@@ -38,6 +38,7 @@ cd "$(dirname "$0")/.."
 R=$PWD
 OUT=${OUT:-/tmp/out}
 G=$R/.gpu
+[ -n "$SMOKE" ] && G=$R/.gpu/smoke   # a SMOKE run's state never makes a real session skip a stage
 L=$G/logs
 S=$G/state
 mkdir -p "$OUT" /tmp/site "$L" "$S" "$G/runs"
@@ -77,9 +78,9 @@ else
   touch $PB_DONE
 fi
 
-REF=$G/ref
+REF=$R/.gpu/ref
 [ -d "$REF" ] || REF=$R/../shared/reference-cliport
-AK=${AK_DATA:-$G/ak/data}
+AK=${AK_DATA:-$R/.gpu/ak/data}
 RUN=$G/runs/assembling-kits-transporter_only-n100-40k
 if [ -n "$SMOKE" ]; then
   BENCH="--device cpu --agents transporter_only two_stream --batch-sizes 1 2 --steps 2 --log-every 1 --n-rotations 4 \
@@ -114,10 +115,11 @@ fi
 
 # 2a. The 40k-step cell: train (resuming) until CELL_STEPS or the window, then test the last checkpoint.
 cell() {
-  local resume="" limit
+  local resume="" limit final
+  final=$(printf "%s/checkpoints/step-%06d.pt" "$RUN" $CELL_STEPS)
   [ -f "$RUN/config.json" ] && resume="--resume"
   limit=$(( $(left) - EVAL_RESERVE ))
-  if [ -z "$(ls "$RUN"/checkpoints/$CELL_STEPS.pt 2>/dev/null)" ] && [ $limit -gt 30 ]; then
+  if [ ! -f "$final" ] && [ $limit -gt 30 ]; then
     echo "[$(el)s] cell: training ${resume:-from step 0} for at most ${limit}s" >>"$L/cell.log"
     if [ -n "$resume" ]; then
       timeout -s INT $limit $py -m cliport.cli.train --resume --run-dir "$RUN" --no-progress >>"$L/cell.log" 2>&1
@@ -128,7 +130,7 @@ cell() {
     fi
     echo "[$(el)s] cell: training rc $?" >>"$L/cell.log"
   fi
-  if [ -f "$RUN/checkpoints/$CELL_STEPS.pt" ] && [ ! -s "$S/cell.json" ]; then
+  if [ -f "$final" ] && [ ! -s "$S/cell.json" ]; then
     while [ ! -e $PB_DONE ]; do sleep 2; done
     local workers=$(( $(nproc) - 2 )); [ $workers -gt $EPISODES ] && workers=$EPISODES; [ $workers -lt 1 ] && workers=1
     echo "[$(el)s] cell: testing the last checkpoint on $EPISODES episodes, $workers workers" >>"$L/cell.log"
@@ -157,16 +159,18 @@ echo "== cell"; cat "$L/cell.log" 2>/dev/null | tail -n 12; tail -n 3 "$RUN/metr
 [ -s "$S/cell.json" ] && $py -c "import json,sys; r=json.load(open(sys.argv[1])); r.pop('episodes', None); print(r)" \
   "$S/cell.json"
 echo "== bench"; tail -n 5 "$L/bench.log" 2>/dev/null
-[ -s "$S/bench.json" ] && $py - "$S/bench.json" <<'EOF'
+for f in "$S/bench.json" "$S/bench-ref.json"; do
+  [ -s "$f" ] && $py - "$f" <<'EOF'
 import json, sys
 r = json.load(open(sys.argv[1]))
-print(r["device"], "loader", round(r["loader"]["samples_per_s"]))
+print(sys.argv[1], r["device"], "loader", round(r["loader"]["samples_per_s"]))
 for name, a in r["agents"].items():
     rates = {b: (round(t["samples_per_s"], 1), t["step_kinds"]) for b, t in a["train"].items()}
     print(name, rates, "act ms", round(a.get("act", {}).get("act_ms", float("nan")), 1))
 print("reference", {k: v for k, v in r.get("reference", {}).items() if k not in ("env", "command")})
 print("ratios", r.get("ratio_to_reference"))
 EOF
+done
 tar czf "$OUT/results.tgz" --exclude='*.safetensors' --exclude='*.pt' --exclude='checkpoints' --exclude='tensorboard' \
   "$L" "$S" "$RUN/metrics.csv" "$RUN/config.json" 2>/dev/null
 ls -la "$OUT"
