@@ -4,15 +4,17 @@ them to the device asynchronously.
 
 Measured on the 2-core development machine (shared with other jobs, 2026-11-27): a place-red-in-green sample
 costs ~2.3 ms in a worker (the SE(2) warp ~0.7 ms of it; an episode file is decompressed once per worker, ~2.5 ms,
-then cached), and the loader alone served 175 samples/s at batch 1 with one worker and 230 with two
-(``scripts/bench_train.py`` reports ``loader_samples_per_s``). Collating in the main process instead costs ~16 ms
-a batch there: ``torch.stack`` with two threads on busy cores.
+then cached), and the loader alone served 175 samples/s at batch 1 with one worker and 158-232 with two over four
+measurements (``scripts/bench_train.py`` reports the loader's rate). Collating a batch-1 sample with torch's default collate in
+the main process (no workers) cost ~16 ms there (``torch.stack`` on two threads); :class:`TrainingCollate` stacks
+with numpy (0.04 ms).
 """
 
 from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
 import torch
 from torch.utils.data import DataLoader, Dataset, RandomSampler, default_collate
 
@@ -29,7 +31,17 @@ class TrainingCollate:
         self.n_rotations = n_rotations
 
     def __call__(self, samples: list[dict[str, Any]]) -> dict[str, Any]:
-        batch = default_collate(samples)
+        batch: dict[str, Any] = {}
+        for key in samples[0]:
+            values = [sample[key] for sample in samples]
+            if isinstance(values[0], np.ndarray):
+                # numpy's stack, not torch's: torch.stack of a few small arrays took ~16 ms with two threads on
+                # the 2-core machine (0.04 ms so), when the loader collates in the main process (no workers).
+                batch[key] = torch.from_numpy(np.stack(values))
+            elif isinstance(values[0], str):
+                batch[key] = values
+            else:
+                batch[key] = default_collate(values)
         hw = tuple(batch["height"].shape[-2:])
         pick, place, rotation = action_targets(batch.pop("pose0"), batch.pop("pose1"), hw, self.n_rotations)
         batch.update(pick_pix=pick, place_pix=place, place_rot=rotation)

@@ -8,7 +8,7 @@ import time
 import numpy as np
 import pytest
 import torch
-from torch.utils.data import Dataset
+from torch.utils.data import Dataset, default_collate
 
 from cliport.agents import make_agent
 from cliport.data.dataset import DemoDataset
@@ -27,7 +27,10 @@ def test_the_collated_targets_are_the_agents(tmp_path, make_synthetic_dataset, t
     expected = agent.action_targets(poses0, poses1, (320, 160))
     for key, value in zip(("pick_pix", "place_pix", "place_rot"), expected, strict=True):
         assert batch[key].dtype == torch.int64 and torch.equal(batch[key], value), key
-    assert batch["color"].shape == (len(samples), 320, 160, 3) and batch["lang"] == [s["lang"] for s in samples]
+    assert batch["lang"] == [s["lang"] for s in samples] and batch["task"] == [s["task"] for s in samples]
+    plain = default_collate(samples)  # torch's own collation of the images: the same tensors
+    for key in ("color", "height"):
+        assert batch[key].dtype == plain[key].dtype and torch.equal(batch[key], plain[key]), key
 
 
 class _Stamped(Dataset):
