@@ -7,7 +7,8 @@ It also times act() (``scripts/bench_model.py``'s timing) and the loader alone a
 ``--reference-dir`` (the reference CLIPort folder, e.g. ../shared/reference-cliport) it runs that folder's
 ``ref_bench.py`` on the same device in a subprocess (the released training step and act() at batch 1, published
 size) and prints our figures over the reference's. ``--profile`` adds the top operations by self time (device time
-on CUDA) of a separate short run of each profiled configuration. Prints one JSON object.
+on CUDA) of a separate short run of each profiled configuration. Prints one JSON object (``--out`` also writes it
+there, and FILE.partial after each measurement while the run goes on).
 
 Published size on a GPU (defaults there: width 1, batch sizes 1 and 8, 100 timed steps in windows of 20):
     python scripts/bench_train.py --reference-dir ../shared/reference-cliport
@@ -346,13 +347,17 @@ def main() -> None:
         "pretrained_weights": "random",
         "agents": {},
     }
+    partial = f"{args.out}.partial" if args.out else None
     with tempfile.TemporaryDirectory(prefix="cliport-bench-train-") as root:
         data_dir = write_demos(os.path.join(root, "data"), args.n_demos)
         report["loader"] = time_loader(args, data_dir)
+        _write(report, partial)
         for agent in args.agents:
             result: dict[str, Any] = {"train": {}}
             for batch_size in args.batch_sizes:
                 result["train"][f"batch{batch_size}"] = time_training(args, agent, batch_size, data_dir, root)
+                report["agents"][agent] = result
+                _write(report, partial)
                 gc.collect()
                 if device.type == "cuda":
                     torch.cuda.empty_cache()
@@ -363,6 +368,7 @@ def main() -> None:
                     f"batch{b}": profile_training(args, agent, b, data_dir, root) for b in args.profile_batch_sizes
                 }
             report["agents"][agent] = result
+            _write(report, partial)
             gc.collect()
             if device.type == "cuda":
                 torch.cuda.empty_cache()
@@ -373,11 +379,21 @@ def main() -> None:
         report["ratio_note"] = "ours / the reference's at batch 1 (train samples/s) and reference act time / ours" + (
             "" if args.width == 1.0 else f"; ours ran at width {args.width}, the reference at the published size"
         )
-    text = json.dumps(report, indent=2)
-    if args.out:
-        with contextlib.suppress(OSError), open(args.out, "w") as f:
-            f.write(text + "\n")
-    print(text)
+    _write(report, args.out)
+    if partial:
+        with contextlib.suppress(OSError):
+            os.remove(partial)
+    print(json.dumps(report, indent=2))
+
+
+def _write(report: dict[str, Any], path: str | None) -> None:
+    """Write the report atomically (``--out``; ``--out``.partial after each measurement, so that a run cut short
+    keeps what it measured)."""
+    if not path:
+        return
+    with open(f"{path}.tmp", "w") as f:
+        f.write(json.dumps(report, indent=2) + "\n")
+    os.replace(f"{path}.tmp", path)
 
 
 if __name__ == "__main__":

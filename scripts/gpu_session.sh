@@ -45,6 +45,7 @@ mkdir -p "$OUT" /tmp/site "$L" "$S" "$G/runs"
 T0=$(date +%s)
 DEADLINE=${DEADLINE:-525}   # seconds after the start by which every stage has stopped (then packing)
 EVAL_RESERVE=${EVAL_RESERVE:-150}   # seconds kept for the cell's 100 test episodes
+BENCH_LIMIT=${BENCH_LIMIT:-270}     # seconds the benchmark may take (bench.json.partial keeps what it measured)
 STAGES=${STAGES:-"bench cell tests"}
 el() { echo $(( $(date +%s) - T0 )); }
 left() { echo $(( DEADLINE - $(el) )); }
@@ -107,8 +108,8 @@ if want bench && [ ! -s "$S/bench.json" ]; then
       --out "$S/bench-ref.json" >"$L/bench_ref.log" 2>&1
     timeout $(left) $py scripts/bench_train.py $BENCH --profile --out "$S/bench.json" >"$L/bench.log" 2>&1
   else
-    timeout $(left) $py scripts/bench_train.py --profile --reference-dir "$REF" --out "$S/bench.json" \
-      >"$L/bench.log" 2>&1
+    timeout $(( BENCH_LIMIT < $(left) ? BENCH_LIMIT : $(left) )) $py scripts/bench_train.py --profile \
+      --reference-dir "$REF" --out "$S/bench.json" >"$L/bench.log" 2>&1
   fi
   echo "[$(el)s] bench rc $?"
 fi
@@ -159,7 +160,7 @@ echo "== cell"; cat "$L/cell.log" 2>/dev/null | tail -n 12; tail -n 3 "$RUN/metr
 [ -s "$S/cell.json" ] && $py -c "import json,sys; r=json.load(open(sys.argv[1])); r.pop('episodes', None); print(r)" \
   "$S/cell.json"
 echo "== bench"; tail -n 5 "$L/bench.log" 2>/dev/null
-for f in "$S/bench.json" "$S/bench-ref.json"; do
+for f in "$S/bench.json" "$S/bench.json.partial" "$S/bench-ref.json"; do
   [ -s "$f" ] && $py - "$f" <<'EOF'
 import json, sys
 r = json.load(open(sys.argv[1]))

@@ -3,11 +3,11 @@ processes, with the training targets computed there too, then pinned, so that th
 them to the device asynchronously.
 
 Measured on the 2-core development machine (shared with other jobs, 2026-11-27): a place-red-in-green sample
-costs ~2.3 ms in a worker (the SE(2) warp ~0.7 ms of it; an episode file is decompressed once per worker, ~2.5 ms,
-then cached), and the loader alone served 175-314 samples/s at batch 1 with one worker and 158-295 with two (nearly
-idle to a load of 10; ``scripts/bench_train.py`` reports the loader's rate). Collating a batch-1 sample with torch's default collate in
-the main process (no workers) cost ~16 ms there (``torch.stack`` on two threads); :class:`TrainingCollate` stacks
-with numpy (0.04 ms).
+costs ~2.1-2.3 ms in a worker (the SE(2) warp ~0.7 ms of it; an episode file is decompressed once per worker,
+~2.5 ms, then cached), and the loader alone served 175-314 samples/s at batch 1 with one worker and 158-295 with
+two (from a load of 10 to a nearly idle machine; ``scripts/bench_train.py`` reports the loader's rate). Collating
+a batch-1 sample with torch's default collate in the main process (no workers) cost ~16 ms there (``torch.stack``
+on two threads); :class:`TrainingCollate` stacks with numpy (0.04 ms).
 """
 
 from __future__ import annotations

@@ -36,9 +36,11 @@ def test_times_the_training_loop_act_loader_and_the_reference(tmp_path):
     reference = tmp_path / "reference"
     reference.mkdir()
     (reference / "ref_bench.py").write_text(FAKE_REF_BENCH)
-    out = _run(*TINY, "--profile", "--reference-dir", str(reference), "--reference-steps", "3")
+    saved = tmp_path / "bench.json"
+    out = _run(*TINY, "--profile", "--reference-dir", str(reference), "--reference-steps", "3", "--out", str(saved))
     assert out.returncode == 0, out.stderr[-3000:]
     report = json.loads(out.stdout)
+    assert json.loads(saved.read_text()) == report and not os.path.exists(f"{saved}.partial")
     assert report["device"] == "cpu" and report["width"] == 0.125 and report["train_graphs"] is True
     ours = report["agents"]["transporter_only"]
     batch1 = ours["train"]["batch1"]
