@@ -9,10 +9,13 @@
 #      (carried in .gpu/ak/data), 40k steps at batch 1, published size, no validation; it trains until the window
 #      closes (resuming from its last.pt, saved every 2000 steps, on a later call) and, once at 40k, tests the last
 #      checkpoint on 100 test episodes -> .gpu/state/cell.json.
-# At 100 steps/s (the target) 40k steps take ~7 minutes: with the bench first, one 9-minute call trains ~20k of them,
-# and a second call of ~5 minutes on the still-warm machine finishes them and the 100 test episodes. If the machine
-# went back in between, the second call starts a bare one and the cell starts again from step 0 (its run folder
-# lives in .gpu/runs on the lent machine only): then run it with STAGES=cell so the whole call trains.
+# At 100 steps/s (the target) 40k steps take ~7 minutes: with the bench first (at most BENCH_LIMIT, 270 s), one
+# 9-minute call trains ~20k of them, and a second call of ~5 minutes on the still-warm machine finishes them and the
+# 100 test episodes. A session's 15 minutes of device time include the machine's start (minutes), so that split may
+# not fit: where it does not, give the cell a session of its own, one call of `STAGES=cell bash
+# scripts/gpu_session.sh` (~7 minutes of training at 100 steps/s, then the test episodes). If the machine went back
+# between two calls, the next one starts a bare machine and the cell from step 0 (its run folder lives in .gpu/runs
+# on the lent machine only).
 # Logs, JSON and the cell's metrics (no checkpoints) come back as $OUT/results.tgz. SMOKE=1 runs every stage tiny
 # on a CPU to check the flags (PY=.venv/bin/python; the reference's transporter at batch 1 for one step: a minute or
 # two there).
