@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import contextlib
 import os
-from typing import Any, ClassVar
+from typing import Any, ClassVar, TypedDict
 
 import numpy as np
 import torch
@@ -16,9 +16,9 @@ from torch import nn
 from cliport import __version__
 from cliport.agents.checkpoint import CHECKPOINT_FORMAT, pretrained_file, read_payload, save_pretrained_folder
 from cliport.agents.config import AgentConfig
-from cliport.agents.decode import actions, decode_pick, decode_place, pose_pixels, pose_yaw
+from cliport.agents.decode import action_targets, actions, decode_pick, decode_place
 from cliport.agents.device_options import DEVICE_OPTIONS, apply_layout_and_precision, option_applies
-from cliport.agents.loss import optimizer_step, pick_place_loss
+from cliport.agents.loss import optimizer_step, pick_place_terms, terms_info
 from cliport.agents.registry import agent_class, agent_from_payload
 from cliport.errors import CheckpointError, ConfigError
 from cliport.models.cuda_graphs import GraphedForward, GraphMemory
@@ -27,6 +27,17 @@ from cliport.models.encoders.base import FrozenEncoder
 from cliport.models.heads import PickHead, PlaceHead
 from cliport.models.preprocess import raw_input
 from cliport.utils.files import save_torch
+
+
+class TrainingInputs(TypedDict):
+    """A training batch as :meth:`PickPlaceAgent.loss_terms` takes it (see :meth:`PickPlaceAgent.training_inputs`)."""
+
+    color: torch.Tensor  # (B, H, W, 3) uint8
+    height: torch.Tensor  # (B, H, W) float
+    pick_pix: torch.Tensor  # (B, 2) int64
+    place_pix: torch.Tensor  # (B, 2) int64
+    place_rot: torch.Tensor  # (B,) int64
+    sentence: torch.Tensor | None  # (B, sentence_dim), or None for agents without language
 
 
 class PickPlaceAgent(nn.Module):
@@ -203,15 +214,63 @@ class PickPlaceAgent(nn.Module):
         return self.pick(x, sentence), self.place(x, pick_pix, sentence)
 
     def action_targets(
-        self, pose0: torch.Tensor | np.ndarray, pose1: torch.Tensor | np.ndarray, hw: tuple[int, ...]
+        self, pose0: torch.Tensor | np.ndarray, pose1: torch.Tensor | np.ndarray, hw: tuple[int, int]
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Training targets of pick and place poses (B, 7) (xyz + quaternion xyzw, world frame of the image):
         pick pixel (B, 2), place pixel (B, 2) (row, col; int64, clamped to the (H, W) image) and the
-        rotation bin (B,) of the relative yaw, as the place head decodes it."""
-        pose0 = torch.as_tensor(pose0, dtype=torch.float64)
-        pose1 = torch.as_tensor(pose1, dtype=torch.float64)
-        rotation = self.place.rotation_bin(pose_yaw(pose1) - pose_yaw(pose0))
-        return pose_pixels(pose0, hw), pose_pixels(pose1, hw), rotation
+        rotation bin (B,) of the relative yaw, as the place head decodes it (see
+        :func:`~cliport.agents.decode.action_targets`)."""
+        return action_targets(pose0, pose1, hw, self.place.n_rotations)
+
+    def training_inputs(self, batch: dict[str, Any], device: torch.device | None = None) -> TrainingInputs:
+        """A training batch as the tensors :meth:`loss_terms` takes, on ``device`` (default: the agent's):
+        ``color`` (B, H, W, 3) uint8, ``height`` (B, H, W), ``pick_pix``/``place_pix`` (B, 2) and ``place_rot``
+        (B,) int64, and ``sentence`` (B, sentence_dim) or None (always on the agent's device). With ``device`` the
+        CPU, tensors the batch holds on the CPU (pinned or not) are returned as they are.
+
+        The targets come from the poses ``pose0``/``pose1`` (B, 7) (see :meth:`action_targets`), or are
+        given directly as ``pick_pix``/``place_pix`` (B, 2) and ``place_rot`` (B,). The inputs are copied
+        to the agent's device with ``non_blocking=True`` (asynchronous from pinned memory), so only uint8
+        colours travel; the sentence features are the frozen encoder's (cached per instruction).
+        """
+        device = self.device if device is None else device
+
+        def move(value: Any) -> torch.Tensor:
+            return torch.as_tensor(value).to(device, non_blocking=True)
+
+        color, height = move(batch["color"]), move(batch["height"])
+        if "pose0" in batch:
+            targets = self.action_targets(batch["pose0"], batch["pose1"], (height.shape[-2], height.shape[-1]))
+        else:
+            targets = (batch["pick_pix"], batch["place_pix"], batch["place_rot"])
+        pick_pix, place_pix, place_rot = (move(t).long() for t in targets)
+        return {
+            "color": color,
+            "height": height,
+            "pick_pix": pick_pix,
+            "place_pix": place_pix,
+            "place_rot": place_rot,
+            "sentence": self.sentence_features(batch.get("lang")),
+        }
+
+    def loss_terms(
+        self,
+        color: torch.Tensor,
+        height: torch.Tensor,
+        pick_pix: torch.Tensor,
+        place_pix: torch.Tensor,
+        place_rot: torch.Tensor,
+        sentence: torch.Tensor | None,
+        loss: str = "sample_ce",
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """The training objective as a function of tensors on the agent's device (:meth:`training_inputs`): colour
+        (B, H, W, 3) uint8, height (B, H, W), target pixels (B, 2) and rotation bins (B,) int64, sentence features
+        (B, sentence_dim) or None -> the loss to minimise and the per-sample cross-entropies (3,) (``loss``,
+        ``pick_loss``, ``place_loss``; see :func:`~cliport.agents.loss.pick_place_terms`). It reads nothing
+        back to the host: a training step built on it can be captured as one CUDA graph."""
+        x = raw_input(color, height)
+        pick_logits, place_logits = self.pick(x, sentence), self.place(x, pick_pix, sentence)
+        return pick_place_terms(pick_logits, place_logits, pick_pix, place_pix, place_rot, loss)
 
     def compute_loss(self, batch: dict[str, Any], loss: str = "sample_ce") -> tuple[torch.Tensor, dict[str, float]]:
         """Cross-entropy over all pick pixels plus over all place pixels x rotations, averaged over the batch.
@@ -219,26 +278,12 @@ class PickPlaceAgent(nn.Module):
         ``loss``: ``sample_ce``, each map's cross-entropy (Ravens'); ``cell_mean``, each map's cross-entropy
         divided by its cells, H * W for pick and R * H * W for place (the reference CLIPort's mean of
         ``-label * log_softmax`` over the map). The info dict always reports the per-sample cross-entropies
-        (``pick_loss``, ``place_loss``, ``loss``), so that recipes compare on one scale.
-
-        The targets come from the poses ``pose0``/``pose1`` (B, 7) (see :meth:`action_targets`), or are
-        given directly as ``pick_pix``/``place_pix`` (B, 2) and ``place_rot`` (B,). The inputs are copied
-        to the agent's device with ``non_blocking=True`` (asynchronous from pinned memory) before the raw
-        input is built there, so only uint8 colours travel.
+        (``pick_loss``, ``place_loss``, ``loss``), so that recipes compare on one scale. The batch is read as
+        :meth:`training_inputs` says (poses or targets; copied to the device) and the loss is
+        :meth:`loss_terms`'.
         """
-        device = self.device
-
-        def move(value: Any) -> torch.Tensor:
-            return torch.as_tensor(value).to(device, non_blocking=True)
-
-        x = raw_input(move(batch["color"]), move(batch["height"]))
-        if "pose0" in batch:
-            targets = self.action_targets(batch["pose0"], batch["pose1"], x.shape[-2:])
-        else:
-            targets = (batch["pick_pix"], batch["place_pix"], batch["place_rot"])
-        pick_pix, place_pix, place_rot = (move(t).long() for t in targets)
-        pick_logits, place_logits = self.logits(x, pick_pix, batch.get("lang"))
-        return pick_place_loss(pick_logits, place_logits, pick_pix, place_pix, place_rot, loss)
+        total, terms = self.loss_terms(**self.training_inputs(batch), loss=loss)
+        return total, terms_info(terms)
 
     def train_step(
         self,

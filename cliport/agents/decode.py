@@ -17,6 +17,7 @@ import torch.nn.functional as F
 
 from cliport.env.heightmap import BOUNDS, PIXEL_SIZE, pix_to_xyz
 from cliport.env.transforms import yaw_to_quat
+from cliport.models.heads import rotation_bin
 
 
 def pose_pixels(pose: torch.Tensor, hw: tuple[int, ...]) -> torch.Tensor:
@@ -31,6 +32,18 @@ def pose_yaw(pose: torch.Tensor) -> torch.Tensor:
     """Poses (B, 7) -> the z angles (B,) of their quaternions (quat_to_yaw: the reference's labels' angle)."""
     x, y, z, w = pose[:, 3], pose[:, 4], pose[:, 5], pose[:, 6]
     return torch.atan2(2 * (x * y + w * z), 1 - 2 * (x * x + z * z))
+
+
+def action_targets(
+    pose0: torch.Tensor | np.ndarray, pose1: torch.Tensor | np.ndarray, hw: tuple[int, int], n_rotations: int
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Training targets of pick and place poses (B, 7) (xyz + quaternion xyzw, world frame of the image), on
+    the CPU in float64: pick pixel (B, 2), place pixel (B, 2) (row, col; int64, clamped to the (H, W) image)
+    and the place head's rotation bin (B,) of the relative yaw (:func:`~cliport.models.heads.rotation_bin`)."""
+    pose0 = torch.as_tensor(pose0, dtype=torch.float64)
+    pose1 = torch.as_tensor(pose1, dtype=torch.float64)
+    rotation = rotation_bin(pose_yaw(pose1) - pose_yaw(pose0), n_rotations)
+    return pose_pixels(pose0, hw), pose_pixels(pose1, hw), rotation
 
 
 def decode_pick(pick_logits: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

@@ -9,20 +9,26 @@ from typing import Any
 import torch
 import torch.nn.functional as F
 
-LossFn = Callable[[dict[str, Any]], tuple[torch.Tensor, dict[str, float]]]
+#: ``batch -> (loss, info)``: info is a dict of floats (``compute_loss``) or the (3,) device terms (``loss_terms``).
+LossFn = Callable[[dict[str, Any]], tuple[torch.Tensor, Any]]
 
 
-def pick_place_loss(
+#: The per-sample cross-entropies a training step reports, in the order of :func:`pick_place_terms`' terms.
+TERMS = ("loss", "pick_loss", "place_loss")
+
+
+def pick_place_terms(
     pick_logits: torch.Tensor,
     place_logits: torch.Tensor,
     pick_pix: torch.Tensor,
     place_pix: torch.Tensor,
     place_rot: torch.Tensor,
     loss: str = "sample_ce",
-) -> tuple[torch.Tensor, dict[str, float]]:
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Pick logits (B, H, W) and place logits (B, R, H, W) against target pixels (B, 2) (row, col) and
-    rotation bins (B,), int64: the loss and the per-sample cross-entropies (``loss``, ``pick_loss``,
-    ``place_loss``).
+    rotation bins (B,), int64: the loss to minimise (a scalar) and the per-sample cross-entropies (3,)
+    (:data:`TERMS`: ``loss``, ``pick_loss``, ``place_loss``), detached and on the logits' device. Nothing is
+    read back to the host, so a training step built on it can be captured as a CUDA graph.
 
     ``loss``: ``sample_ce``, each map's cross-entropy over all its cells, averaged over the batch (Ravens');
     ``cell_mean``, each map's cross-entropy divided by its cells, H * W for pick and R * H * W for place (the
@@ -34,12 +40,32 @@ def pick_place_loss(
     pick_loss = F.cross_entropy(pick_logits.flatten(1).float(), pick_target)
     place_loss = F.cross_entropy(place_logits.flatten(1).float(), place_target)
     total = pick_loss + place_loss
-    info = {"loss": total.item(), "pick_loss": pick_loss.item(), "place_loss": place_loss.item()}
+    terms = torch.stack([total, pick_loss, place_loss]).detach()
     if loss == "cell_mean":
         total = pick_loss / pick_logits[0].numel() + place_loss / place_logits[0].numel()
     elif loss != "sample_ce":
         raise ValueError(f"unknown loss {loss!r}; choose cell_mean or sample_ce")
-    return total, info
+    return total, terms
+
+
+def terms_info(terms: torch.Tensor) -> dict[str, float]:
+    """The (3,) terms of :func:`pick_place_terms` as ``{"loss": ..., "pick_loss": ..., "place_loss": ...}``
+    (read from the device: a synchronisation)."""
+    return dict(zip(TERMS, terms.tolist(), strict=True))
+
+
+def pick_place_loss(
+    pick_logits: torch.Tensor,
+    place_logits: torch.Tensor,
+    pick_pix: torch.Tensor,
+    place_pix: torch.Tensor,
+    place_rot: torch.Tensor,
+    loss: str = "sample_ce",
+) -> tuple[torch.Tensor, dict[str, float]]:
+    """:func:`pick_place_terms` with the per-sample cross-entropies read as floats (``loss``, ``pick_loss``,
+    ``place_loss``)."""
+    total, terms = pick_place_terms(pick_logits, place_logits, pick_pix, place_pix, place_rot, loss)
+    return total, terms_info(terms)
 
 
 def optimizer_step(
@@ -47,8 +73,9 @@ def optimizer_step(
     batch: dict[str, Any],
     optimizer: torch.optim.Optimizer,
     autocast: contextlib.AbstractContextManager[Any] | None = None,
-) -> dict[str, float]:
-    """The one training step of the project: zero grads, loss (under ``autocast``), backward, step.
+) -> Any:
+    """The one training step of the project: zero grads, loss (under ``autocast``), backward, step. Returns
+    ``loss_fn``'s info.
 
     ``loss_fn`` is an agent's ``compute_loss`` or a DDP-wrapped module with the same call signature.
     """

@@ -76,6 +76,12 @@ def _count_registration(*_: object) -> None:
     _registrations += 1
 
 
+def registration_count() -> int:
+    """How many parameters, buffers and sub-modules were registered on any module so far: a cached list of a
+    module's tensors is stale when this changed since it was walked."""
+    return _registrations
+
+
 for _register in (
     nn.modules.module.register_module_parameter_registration_hook,
     nn.modules.module.register_module_buffer_registration_hook,

@@ -44,6 +44,13 @@ def grow_logits(logits: torch.Tensor, size: tuple[int, ...]) -> torch.Tensor:
     return F.interpolate(logits, size=size, mode="bilinear", align_corners=False)
 
 
+def rotation_bin(relative_yaw: torch.Tensor, n_rotations: int) -> torch.Tensor:
+    """Bin of a relative place yaw (place yaw - pick yaw, radians), (B,) float -> (B,) int64: the nearest k
+    with -k * 2*pi / n_rotations, modulo n_rotations (the reference's labels; see :class:`PlaceHead`)."""
+    step = 2 * math.pi / n_rotations
+    return torch.round(-relative_yaw.double() / step).long() % n_rotations
+
+
 class PickHead(nn.Module):
     """Pads the input to a square, runs a 1-channel net and crops back: logits over all pick pixels.
 
@@ -117,8 +124,7 @@ class PlaceHead(nn.Module):
     def rotation_bin(self, relative_yaw: torch.Tensor) -> torch.Tensor:
         """Bin of a relative place yaw (place yaw - pick yaw, radians), (B,) float -> (B,) int64: the
         nearest k with -k * 2*pi / n_rotations, modulo n_rotations (the reference's labels)."""
-        step = 2 * math.pi / self.n_rotations
-        return torch.round(-relative_yaw.double() / step).long() % self.n_rotations
+        return rotation_bin(relative_yaw, self.n_rotations)
 
     def bin_yaw(self, k: int) -> float:
         """The relative world yaw (radians, in (-2*pi, 0]) that rotation bin ``k`` stands for."""

@@ -52,6 +52,12 @@ class TrainConfig:
         every_instruction: train on every instruction the demos record for each step (``cliport-demos
             --every-instruction``), each with the oracle's action for it, not only the one each scene was built
             with: the same image under other sentences and other answers. Not the reference's.
+        train_graphs: on CUDA, replay each training step as one CUDA graph at the run's batch shape (forward,
+            loss, backward, fused Adam; :mod:`cliport.train.graphed_step`); a step of another shape, a CPU and
+            DDP train eagerly. Off: every step eagerly.
+        compile: run the agent's loss through ``torch.compile`` (forward and loss fused into generated kernels,
+            the backward through AOTAutograd), inside the captured graph on CUDA; the first steps compile
+            (minutes at the published size). Off by default; single-process runs only.
         agent_config: the agent's own settings (its config class; defaults in configs/<agent>.toml).
         env: workcell settings of the validation episodes (defaults in configs/env.toml).
     """
@@ -81,6 +87,9 @@ class TrainConfig:
     # Runs saved before recipes existed trained with what configs/recipes.toml calls legacy.
     recipe: str = "legacy"
     every_instruction: bool = False
+    # Defaults only so that config.json files of runs saved before these settings existed load.
+    train_graphs: bool = True
+    compile: bool = False
 
     @classmethod
     def build(cls, overrides: Mapping[str, Any] | None = None, base: Mapping[str, Any] | None = None) -> TrainConfig:

@@ -1,5 +1,7 @@
 """Training: a step loop over augmented demonstration batches with scheduled checkpoints, a rolling
-resume point, metrics, optional DDP (torchrun) and mixed precision.
+resume point, metrics, optional DDP (torchrun) and mixed precision. On CUDA the step is replayed as one CUDA
+graph at the run's batch shape (:mod:`cliport.train.graphed_step`); the losses stay on the device and are
+read every ``log_every`` steps.
 
 The run folder's layout is :mod:`cliport.utils.run_dir`. Validation is not this module's business: the
 caller passes a :class:`Validator` (``cliport.evaluation.validation`` has the simulator one), which
@@ -13,22 +15,24 @@ import csv
 import os
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Any, Protocol
 
 import torch
 import torch.distributed as dist
 from torch import nn
-from torch.utils.data import DataLoader, RandomSampler
+from torch.utils.data import DataLoader
 from tqdm import tqdm
 
 from cliport.agents.base import PickPlaceAgent
 from cliport.agents.checkpoint import save_weights
-from cliport.agents.loss import optimizer_step
 from cliport.env.environment import expected_renderer
 from cliport.errors import RunDirError, UserError
 from cliport.train.config import TrainConfig
 from cliport.train.dead_maps import DeadMapWatch
+from cliport.train.graphed_step import TrainStep
+from cliport.train.loader import training_loader
+from cliport.train.loss_sums import LossSums
 from cliport.train.resume import load_optimizer_state
 from cliport.utils.device import bf16_native, resolve_device
 from cliport.utils.files import link_or_copy, load_torch, save_torch, write_json
@@ -76,15 +80,16 @@ def load_run_config(run_dir: str) -> TrainConfig:
 
 
 class _LossModule(nn.Module):
-    """Wraps an agent so that DDP sees ``forward(batch) -> (loss, info)`` with the recipe's loss."""
+    """Wraps an agent so that DDP sees ``forward(batch) -> (loss, terms)`` with the recipe's loss (the (3,)
+    terms of :meth:`~cliport.agents.base.PickPlaceAgent.loss_terms`, on the device)."""
 
     def __init__(self, agent: PickPlaceAgent, loss: str) -> None:
         super().__init__()
         self.agent = agent
         self.loss = loss
 
-    def forward(self, batch: dict[str, Any]) -> tuple[torch.Tensor, dict[str, float]]:
-        return self.agent.compute_loss(batch, self.loss)
+    def forward(self, batch: dict[str, Any]) -> tuple[torch.Tensor, torch.Tensor]:
+        return self.agent.loss_terms(**self.agent.training_inputs(batch), loss=self.loss)
 
 
 def _distributed() -> tuple[int, int, int]:
@@ -154,9 +159,14 @@ def _check_demo_rendering(dataset: Any, config: TrainConfig) -> None:
 
 
 def train(
-    config: TrainConfig, resume: bool = False, progress: bool = True, validator: Validator | None = None
+    config: TrainConfig,
+    resume: bool = False,
+    progress: bool = True,
+    validator: Validator | None = None,
+    step_hook: Callable[[int], None] | None = None,
 ) -> dict[str, Any]:
-    """Train (or resume) a run; returns a summary. ``validator`` (on rank 0) scores the checkpoints."""
+    """Train (or resume) a run; returns a summary. ``validator`` (on rank 0) scores the checkpoints.
+    ``step_hook(step)`` is called after every optimiser step (a benchmark's profiler)."""
     from cliport.agents import make_agent, read_checkpoint
     from cliport.data.dataset import DemoDataset
 
@@ -217,22 +227,31 @@ def train(
         os.makedirs(run.root, exist_ok=True)
         write_json(run.config, config.to_dict())
 
-    model: nn.Module = _LossModule(agent, recipe.loss)
+    model = None
     if world > 1:
-        model = nn.parallel.DistributedDataParallel(model, device_ids=[local_rank] if device.type == "cuda" else None)
+        # DDP steps eagerly: its gradient all-reduce would need its own warm-up and stream set-up to be captured.
+        ddp_ids = [local_rank] if device.type == "cuda" else None
+        model = nn.parallel.DistributedDataParallel(_LossModule(agent, recipe.loss), device_ids=ddp_ids)
     use_amp = config.amp == "bf16" or (config.amp == "auto" and bf16_native(device))
-    autocast = torch.autocast(device.type, dtype=torch.bfloat16) if use_amp else contextlib.nullcontext()
-
-    generator = torch.Generator().manual_seed(config.seed * 7919 + rank + step)
-    sampler = RandomSampler(dataset, replacement=True, num_samples=10**9, generator=generator)
-    loader = DataLoader(
+    sums = LossSums(device)
+    watch = DeadMapWatch(device=device, start_step=step)
+    train_step = TrainStep(
+        agent,
+        optimizer,
+        recipe.loss,
+        autocast_dtype=torch.bfloat16 if use_amp else None,
+        observers=(sums.add, watch.observe),
+        graphs=config.train_graphs and world == 1,
+        compile=config.compile and world == 1,
+        model=model,
+    )
+    loader: DataLoader = training_loader(
         dataset,
-        batch_size=config.batch_size,
-        sampler=sampler,
-        num_workers=config.num_workers,
-        persistent_workers=config.num_workers > 0,
+        config.batch_size,
+        agent.config.n_rotations,
+        config.num_workers,
+        seed=config.seed * 7919 + rank + step,
         pin_memory=device.type == "cuda",
-        drop_last=True,
     )
     schedule = set(checkpoint_schedule(config))
     fields = ["step", "loss", "pick_loss", "place_loss", "steps_per_second", "samples_per_second", "elapsed_s"]
@@ -257,9 +276,7 @@ def train(
     tensorboard = summary_writer(run.tensorboard, purge_step=step + 1 if step else None) if rank == 0 else None
     bar = tqdm(total=config.n_steps, initial=step, desc=f"train {config.agent}", disable=not progress or rank != 0)
     start, window_start, window_steps = time.perf_counter(), time.perf_counter(), 0
-    sums = {"loss": 0.0, "pick_loss": 0.0, "place_loss": 0.0}
     batches = _batches(loader)
-    watch = DeadMapWatch()
     try:
         with open(run.metrics, "a", newline="") if rank == 0 else contextlib.nullcontext() as metrics_file:
             writer = csv.DictWriter(metrics_file, fieldnames=fields) if metrics_file is not None else None
@@ -267,16 +284,17 @@ def train(
                 writer.writeheader()
             agent.train()
             while step < config.n_steps:
-                info = optimizer_step(model, _next_batch(batches), optimizer, autocast)
+                train_step(_next_batch(batches))
                 step += 1
-                watch.observe(step, info)
+                sums.count()
                 window_steps += 1
-                for k in sums:
-                    sums[k] += info[k]
                 bar.update(1)
+                if step_hook is not None:
+                    step_hook(step)
                 if step % config.log_every == 0 or step == config.n_steps:
+                    row: dict[str, Any] = {k: round(v, 5) for k, v in sums.read().items()}  # waits for the device
+                    watch.check()
                     elapsed = time.perf_counter() - window_start
-                    row = {k: round(v / window_steps, 5) for k, v in sums.items()}
                     row.update(
                         step=step,
                         steps_per_second=round(window_steps / elapsed, 3),
@@ -292,8 +310,9 @@ def train(
                         tensorboard.add_scalar("train/learning_rate", optimizer.param_groups[0]["lr"], step)
                         log_gpu_memory(tensorboard, device, step)
                     bar.set_postfix(loss=f"{row['loss']:.3f}", steps_s=f"{row['steps_per_second']:.2f}")
-                    sums = dict.fromkeys(sums, 0.0)
                     window_start, window_steps = time.perf_counter(), 0
+                if step in schedule or step % config.save_last_every == 0:
+                    watch.check()  # never save a run whose map died since the last row
                 if step in schedule:
                     save(step)
                 if step in schedule or step % config.save_last_every == 0:
@@ -306,6 +325,10 @@ def train(
         if tensorboard is not None:
             tensorboard.close()
     summary: dict[str, Any] = {"run_dir": run.root, "steps": step, "checkpoints": run.checkpoint_steps()}
+    # How this process's steps ran: replays of the captured CUDA graph, eager steps (warm-up included).
+    summary["step_kinds"] = {"graph_replays": train_step.replays, "eager": train_step.eager_steps}
+    if train_step.failed:
+        summary["step_kinds"]["capture_failed"] = train_step.failed
     if rank == 0 and validator is not None:
         summary["validation"] = validator.finish()
     if world > 1:

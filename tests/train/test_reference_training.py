@@ -27,7 +27,7 @@ import torch.nn.functional as F
 import cliport.agents.base as agent_base
 from cliport.agents import load_agent
 from cliport.agents.base import PickPlaceAgent
-from cliport.agents.loss import pick_place_loss
+from cliport.agents.loss import pick_place_terms
 from cliport.env import heightmap as hm
 from cliport.models import correlation, reference_names
 from cliport.train.convert import convert_checkpoint
@@ -358,10 +358,10 @@ def test_a_planted_one_percent_loss_scale_fails_parity(transporter_reference, sa
     nearly cancels a scale, so it is the first-step gradients that catch it."""
 
     def scaled(*args: object, **kwargs: object):
-        total, info = pick_place_loss(*args, **kwargs)
-        return total * 1.01, info
+        total, terms = pick_place_terms(*args, **kwargs)
+        return total * 1.01, terms
 
     with monkeypatch.context() as patch:
-        patch.setattr(agent_base, "pick_place_loss", scaled)
+        patch.setattr(agent_base, "pick_place_terms", scaled)
         failures = _check("transporter_only", transporter_reference, samples, patch)
     assert any("first-step gradient" in f for f in failures), failures
