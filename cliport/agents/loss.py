@@ -54,20 +54,6 @@ def terms_info(terms: torch.Tensor) -> dict[str, float]:
     return dict(zip(TERMS, terms.tolist(), strict=True))
 
 
-def pick_place_loss(
-    pick_logits: torch.Tensor,
-    place_logits: torch.Tensor,
-    pick_pix: torch.Tensor,
-    place_pix: torch.Tensor,
-    place_rot: torch.Tensor,
-    loss: str = "sample_ce",
-) -> tuple[torch.Tensor, dict[str, float]]:
-    """:func:`pick_place_terms` with the per-sample cross-entropies read as floats (``loss``, ``pick_loss``,
-    ``place_loss``)."""
-    total, terms = pick_place_terms(pick_logits, place_logits, pick_pix, place_pix, place_rot, loss)
-    return total, terms_info(terms)
-
-
 def optimizer_step(
     loss_fn: LossFn,
     batch: dict[str, Any],
