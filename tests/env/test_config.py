@@ -1,0 +1,37 @@
+"""The workcell's settings apart from the simulator: training from demos imports no PyBullet."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+from cliport.env import config as env_config
+from cliport.env.config import EnvConfig, expected_renderer
+
+BLOCK_PYBULLET = """
+import importlib.abc, sys
+class Block(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path, target=None):
+        if name.split(".")[0] == "pybullet":
+            raise ImportError("pybullet is blocked in this test")
+sys.meta_path.insert(0, Block())
+import cliport.train.trainer, cliport.cli.train
+from cliport.env.config import EnvConfig, expected_renderer
+print(EnvConfig.defaults(camera_scale=0.5).camera_scale, expected_renderer("cpu"))
+"""
+
+
+def test_the_trainer_imports_without_pybullet() -> None:
+    # A GPU session trains while PyBullet still compiles beside it; only validation and evaluation need it.
+    done = subprocess.run([sys.executable, "-c", BLOCK_PYBULLET], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.split() == ["0.5", "tiny"]
+
+
+def test_expected_renderer_follows_the_gpu_and_the_setting(monkeypatch) -> None:
+    monkeypatch.setattr(env_config, "gpu_present", lambda: False)
+    assert expected_renderer("auto") == "tiny"
+    assert expected_renderer("cpu") == "tiny"
+    monkeypatch.setattr(env_config, "gpu_present", lambda: True)
+    assert expected_renderer("egl") == "egl"
+    assert EnvConfig.defaults().renderer in ("auto", "egl", "cpu")
