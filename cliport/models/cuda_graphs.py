@@ -42,11 +42,14 @@ class GraphMemory:
         self.device: torch.device | None = None
         self.done: Any = None  # a torch.cuda.Event recorded after every graphed call
         self.failed: str | None = None  # why a capture failed: then every call runs eagerly
+        # The side stream of every warm-up and capture: each stream cuBLAS runs on holds a workspace of its own
+        # (32 MiB on Hopper) until the process ends, so one per owner, not two per captured batch size.
+        self.stream: Any = None
 
     def reset(self) -> None:
         """Forget the pool and the failure (after every graph using them is dropped)."""
         with self.lock:
-            self.pool, self.device, self.done, self.failed = None, None, None, None
+            self.pool, self.device, self.done, self.failed, self.stream = None, None, None, None, None
 
     def __deepcopy__(self, memo: dict[int, Any]) -> GraphMemory:
         return GraphMemory()  # a copy of the owner starts with no graphs
@@ -95,7 +98,7 @@ def _capture_cuda(
 ) -> tuple[torch.cuda.CUDAGraph, torch.Tensor]:
     """Warm ``fn`` up on a side stream and capture it into the shared pool, all on the inputs' device.
 
-    The streams are made here, under the device guard: ``torch.cuda.graph``'s default capture stream is
+    The stream is made here, under the device guard: ``torch.cuda.graph``'s default capture stream is
     created once per process on whatever device was current then. ``thread_local`` capture: other threads
     (a server's, a data loader's) may go on using CUDA while this one captures.
     """
@@ -103,15 +106,16 @@ def _capture_cuda(
     with torch.cuda.device(device):
         if memory.pool is None:
             memory.pool = torch.cuda.graph_pool_handle()
-        side = torch.cuda.Stream(device)
+        if memory.stream is None:
+            memory.stream = torch.cuda.Stream(device)
+        side = memory.stream
         side.wait_stream(torch.cuda.current_stream(device))
         with torch.cuda.stream(side):
             for _ in range(WARMUP_ITERS):
                 fn(*inputs)
         torch.cuda.current_stream(device).wait_stream(side)
         graph = torch.cuda.CUDAGraph()
-        capture_stream = torch.cuda.Stream(device)
-        with torch.cuda.graph(graph, pool=memory.pool, stream=capture_stream, capture_error_mode="thread_local"):
+        with torch.cuda.graph(graph, pool=memory.pool, stream=side, capture_error_mode="thread_local"):
             output = fn(*inputs)
     return graph, output
 

@@ -48,29 +48,29 @@ CAPTURE_DEVICES = {"cuda"}
 INPUTS = ("color", "height", "pick_pix", "place_pix", "place_rot", "sentence")
 
 
-def _capture_cuda(body: Callable[[], None], device: torch.device) -> Any:
-    """Capture ``body`` into a new CUDA graph on ``device`` (``thread_local``: the loader's pin-memory thread
-    may go on allocating pinned memory meanwhile)."""
+def _capture_cuda(body: Callable[[], None], device: torch.device, stream: Any) -> Any:
+    """Capture ``body`` into a new CUDA graph on ``device``, on ``stream`` (``thread_local``: the loader's
+    pin-memory thread may go on allocating pinned memory meanwhile)."""
     with torch.cuda.device(device):
         graph = torch.cuda.CUDAGraph()
-        with torch.cuda.graph(graph, stream=torch.cuda.Stream(device), capture_error_mode="thread_local"):
+        with torch.cuda.graph(graph, stream=stream, capture_error_mode="thread_local"):
             body()
     return graph
 
 
-#: How a step is captured: ``(body, device) -> graph with replay()``. Tests without CUDA replace it with an
-#: eager double that runs ``body`` again at every replay.
-capture: Callable[[Callable[[], None], torch.device], Any] = _capture_cuda
+#: How a step is captured: ``(body, device, stream) -> graph with replay()``. Tests without CUDA replace it with
+#: an eager double that runs ``body`` again at every replay.
+capture: Callable[[Callable[[], None], torch.device, Any], Any] = _capture_cuda
 
 
 @contextlib.contextmanager
-def _side_stream(device: torch.device) -> Iterator[None]:
-    """Run the body on a fresh side stream of ``device`` that waits for, and is waited for by, the current one."""
+def _side_stream(device: torch.device, side: Any) -> Iterator[None]:
+    """Run the body on the side stream ``side`` of ``device`` (None off CUDA), which waits for, and is waited
+    for by, the current one."""
     if device.type != "cuda":
         yield
         return
     current = torch.cuda.current_stream(device)
-    side = torch.cuda.Stream(device)
     side.wait_stream(current)
     with torch.cuda.stream(side):
         yield
@@ -137,6 +137,9 @@ class TrainStep:
         self._tensors: list[torch.Tensor] = []
         self._walked_at = -1
         self._addresses: tuple[int, ...] | None = None
+        # One side stream for every warm-up and capture: each stream cuBLAS runs on holds a workspace of its own
+        # (32 MiB on Hopper) until the process ends, so a fresh stream per warm-up step grew the peak memory.
+        self._stream: Any = torch.cuda.Stream(self.device) if self.graphs and self.device.type == "cuda" else None
 
     @property
     def captured(self) -> bool:
@@ -210,7 +213,7 @@ class TrainStep:
             return
         self.agent.train()
         if self._warmed < WARMUP_STEPS:
-            with _side_stream(self.device):
+            with _side_stream(self.device, self._stream):
                 self.optimizer.zero_grad(set_to_none=True)
                 self._body(static)
             self._warmed += 1
@@ -226,7 +229,7 @@ class TrainStep:
         try:
             for group in self.optimizer.param_groups:
                 group["capturable"] = True  # fused Adam's arithmetic is the same either way
-            graph = capture(lambda: self._body(static), self.device)
+            graph = capture(lambda: self._body(static), self.device, self._stream)
         except Exception as e:  # noqa: BLE001 - any capture failure means: train eagerly
             self.optimizer.zero_grad(set_to_none=True)
             self._fail(f"{type(e).__name__}: {e}")
