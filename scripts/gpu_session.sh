@@ -16,6 +16,8 @@
 # scripts/gpu_session.sh` (~7 minutes of training at 100 steps/s, then the test episodes). If the machine went back
 # between two calls, the next one starts a bare machine and the cell from step 0 (its run folder lives in .gpu/runs
 # on the lent machine only).
+# PyBullet compiles in the background (~80 s on 16 cores): the bench and the cell's training need none (training
+# from demos imports no simulator); the tests and the cell's test episodes wait for it.
 # Logs, JSON and the cell's metrics (no checkpoints) come back as $OUT/results.tgz. SMOKE=1 runs every stage tiny
 # on a CPU to check the flags (PY=.venv/bin/python; the reference's transporter at batch 1 for one step: a minute or
 # two there).
