@@ -10,11 +10,12 @@ capture reuses only the pool memory that earlier graphs freed (their intermediat
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import logging
 import threading
 import weakref
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -93,6 +94,20 @@ for _register in (
     _register(_count_registration)
 
 
+@contextlib.contextmanager
+def on_side_stream(device: torch.device, side: Any) -> Iterator[None]:
+    """Run the body on the side stream ``side`` of ``device`` (a warm-up before a capture), which waits for, and
+    is waited for by, the current stream; off CUDA (``side`` None) the body just runs."""
+    if device.type != "cuda":
+        yield
+        return
+    current = torch.cuda.current_stream(device)
+    side.wait_stream(current)
+    with torch.cuda.stream(side):
+        yield
+    current.wait_stream(side)
+
+
 def _capture_cuda(
     fn: Callable[..., torch.Tensor], inputs: tuple[torch.Tensor | None, ...], memory: GraphMemory
 ) -> tuple[torch.cuda.CUDAGraph, torch.Tensor]:
@@ -108,14 +123,11 @@ def _capture_cuda(
             memory.pool = torch.cuda.graph_pool_handle()
         if memory.stream is None:
             memory.stream = torch.cuda.Stream(device)
-        side = memory.stream
-        side.wait_stream(torch.cuda.current_stream(device))
-        with torch.cuda.stream(side):
+        with on_side_stream(device, memory.stream):
             for _ in range(WARMUP_ITERS):
                 fn(*inputs)
-        torch.cuda.current_stream(device).wait_stream(side)
         graph = torch.cuda.CUDAGraph()
-        with torch.cuda.graph(graph, pool=memory.pool, stream=side, capture_error_mode="thread_local"):
+        with torch.cuda.graph(graph, pool=memory.pool, stream=memory.stream, capture_error_mode="thread_local"):
             output = fn(*inputs)
     return graph, output
 

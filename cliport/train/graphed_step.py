@@ -29,14 +29,14 @@ from __future__ import annotations
 
 import contextlib
 import logging
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from typing import Any
 
 import torch
 
 from cliport.agents.base import PickPlaceAgent
 from cliport.agents.loss import LossFn, optimizer_step
-from cliport.models.cuda_graphs import registration_count
+from cliport.models.cuda_graphs import on_side_stream, registration_count
 
 log = logging.getLogger(__name__)
 
@@ -61,20 +61,6 @@ def _capture_cuda(body: Callable[[], None], device: torch.device, stream: Any) -
 #: How a step is captured: ``(body, device, stream) -> graph with replay()``. Tests without CUDA replace it with
 #: an eager double that runs ``body`` again at every replay.
 capture: Callable[[Callable[[], None], torch.device, Any], Any] = _capture_cuda
-
-
-@contextlib.contextmanager
-def _side_stream(device: torch.device, side: Any) -> Iterator[None]:
-    """Run the body on the side stream ``side`` of ``device`` (None off CUDA), which waits for, and is waited
-    for by, the current one."""
-    if device.type != "cuda":
-        yield
-        return
-    current = torch.cuda.current_stream(device)
-    side.wait_stream(current)
-    with torch.cuda.stream(side):
-        yield
-    current.wait_stream(side)
 
 
 class TrainStep:
@@ -213,7 +199,7 @@ class TrainStep:
             return
         self.agent.train()
         if self._warmed < WARMUP_STEPS:
-            with _side_stream(self.device, self._stream):
+            with on_side_stream(self.device, self._stream):
                 self.optimizer.zero_grad(set_to_none=True)
                 self._body(static)
             self._warmed += 1
