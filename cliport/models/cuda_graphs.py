@@ -43,14 +43,11 @@ class GraphMemory:
         self.device: torch.device | None = None
         self.done: Any = None  # a torch.cuda.Event recorded after every graphed call
         self.failed: str | None = None  # why a capture failed: then every call runs eagerly
-        # The side stream of every warm-up and capture: each stream cuBLAS runs on holds a workspace of its own
-        # (32 MiB on Hopper) until the process ends, so one per owner, not two per captured batch size.
-        self.stream: Any = None
 
     def reset(self) -> None:
         """Forget the pool and the failure (after every graph using them is dropped)."""
         with self.lock:
-            self.pool, self.device, self.done, self.failed, self.stream = None, None, None, None, None
+            self.pool, self.device, self.done, self.failed = None, None, None, None
 
     def __deepcopy__(self, memo: dict[int, Any]) -> GraphMemory:
         return GraphMemory()  # a copy of the owner starts with no graphs
@@ -94,13 +91,31 @@ for _register in (
     _register(_count_registration)
 
 
+_threads = threading.local()
+
+
+def side_stream(device: torch.device) -> Any:
+    """The calling thread's side stream on ``device`` (None off CUDA), made at its first use: every warm-up and
+    capture of the thread runs there. Each stream cuBLAS runs on holds a workspace of its own (32 MiB on Hopper)
+    until the process ends, so a stream per owner or per capture would grow the memory with every agent made."""
+    if device.type != "cuda":
+        return None
+    index = device.index if device.index is not None else torch.cuda.current_device()
+    streams: dict[int, Any] = _threads.__dict__.setdefault("streams", {})
+    if index not in streams:
+        with torch.cuda.device(index):
+            streams[index] = torch.cuda.Stream(index)
+    return streams[index]
+
+
 @contextlib.contextmanager
-def on_side_stream(device: torch.device, side: Any) -> Iterator[None]:
-    """Run the body on the side stream ``side`` of ``device`` (a warm-up before a capture), which waits for, and
-    is waited for by, the current stream; off CUDA (``side`` None) the body just runs."""
+def on_side_stream(device: torch.device) -> Iterator[None]:
+    """Run the body on this thread's :func:`side_stream` of ``device`` (a warm-up before a capture), which waits
+    for, and is waited for by, the current stream; off CUDA the body just runs."""
     if device.type != "cuda":
         yield
         return
+    side = side_stream(device)
     current = torch.cuda.current_stream(device)
     side.wait_stream(current)
     with torch.cuda.stream(side):
@@ -113,21 +128,19 @@ def _capture_cuda(
 ) -> tuple[torch.cuda.CUDAGraph, torch.Tensor]:
     """Warm ``fn`` up on a side stream and capture it into the shared pool, all on the inputs' device.
 
-    The stream is made here, under the device guard: ``torch.cuda.graph``'s default capture stream is
-    created once per process on whatever device was current then. ``thread_local`` capture: other threads
+    The stream is the thread's :func:`side_stream` of that device: ``torch.cuda.graph``'s default capture
+    stream is created once per process on whatever device was current then. ``thread_local`` capture: other threads
     (a server's, a data loader's) may go on using CUDA while this one captures.
     """
     device = next(t.device for t in inputs if t is not None)
     with torch.cuda.device(device):
         if memory.pool is None:
             memory.pool = torch.cuda.graph_pool_handle()
-        if memory.stream is None:
-            memory.stream = torch.cuda.Stream(device)
-        with on_side_stream(device, memory.stream):
+        with on_side_stream(device):
             for _ in range(WARMUP_ITERS):
                 fn(*inputs)
         graph = torch.cuda.CUDAGraph()
-        with torch.cuda.graph(graph, pool=memory.pool, stream=memory.stream, capture_error_mode="thread_local"):
+        with torch.cuda.graph(graph, pool=memory.pool, stream=side_stream(device), capture_error_mode="thread_local"):
             output = fn(*inputs)
     return graph, output
 

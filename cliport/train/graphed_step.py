@@ -36,7 +36,7 @@ import torch
 
 from cliport.agents.base import PickPlaceAgent
 from cliport.agents.loss import LossFn, optimizer_step
-from cliport.models.cuda_graphs import on_side_stream, registration_count
+from cliport.models.cuda_graphs import on_side_stream, registration_count, side_stream
 
 log = logging.getLogger(__name__)
 
@@ -123,9 +123,6 @@ class TrainStep:
         self._tensors: list[torch.Tensor] = []
         self._walked_at = -1
         self._addresses: tuple[int, ...] | None = None
-        # One side stream for every warm-up and capture: each stream cuBLAS runs on holds a workspace of its own
-        # (32 MiB on Hopper) until the process ends, so a fresh stream per warm-up step grew the peak memory.
-        self._stream: Any = torch.cuda.Stream(self.device) if self.graphs and self.device.type == "cuda" else None
 
     @property
     def captured(self) -> bool:
@@ -199,7 +196,7 @@ class TrainStep:
             return
         self.agent.train()
         if self._warmed < WARMUP_STEPS:
-            with on_side_stream(self.device, self._stream):
+            with on_side_stream(self.device):
                 self.optimizer.zero_grad(set_to_none=True)
                 self._body(static)
             self._warmed += 1
@@ -215,7 +212,7 @@ class TrainStep:
         try:
             for group in self.optimizer.param_groups:
                 group["capturable"] = True  # fused Adam's arithmetic is the same either way
-            graph = capture(lambda: self._body(static), self.device, self._stream)
+            graph = capture(lambda: self._body(static), self.device, side_stream(self.device))
         except Exception as e:  # noqa: BLE001 - any capture failure means: train eagerly
             self.optimizer.zero_grad(set_to_none=True)
             self._fail(f"{type(e).__name__}: {e}")
