@@ -21,7 +21,7 @@ if TYPE_CHECKING:
 
 def _parser() -> tuple[argparse.ArgumentParser, list[str]]:
     from cliport.agents import agent_names, config_classes
-    from cliport.env.environment import EnvConfig
+    from cliport.env.config import EnvConfig
     from cliport.train.config import TrainConfig
     from cliport.utils.config import add_flags
 
@@ -90,9 +90,11 @@ def config_from_args(args: argparse.Namespace, dests: list[str]) -> TrainConfig:
 def _rotation_default(given: dict[str, Any]) -> dict[str, Any]:
     """One place rotation by default for tasks whose expert's place yaw carries no information (noted
     on stderr); given --n-rotations always wins."""
+    if "n_rotations" in given.get("agent_config", {}):
+        return given
     from cliport import tasks
 
-    if "n_rotations" in given.get("agent_config", {}) or tasks.place_yaw_informative(given["task"]):
+    if tasks.place_yaw_informative(given["task"]):
         return given
     print(
         f"note: the place yaw of {given['task']} carries no information (nothing checks it), so the agent "

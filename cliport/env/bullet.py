@@ -1,8 +1,10 @@
-"""PyBullet, imported in one place with its build-time banner kept off the console.
+"""PyBullet, imported in one place, at its first use, with its build-time banner kept off the console.
 
 ``import pybullet`` prints ``pybullet build time: ...`` from C on file descriptor 2 at every start of
 a process. Library modules import it from here (``from cliport.env.bullet import p``) so that the
-first import happens with the native stdout/stderr silenced.
+first import happens with the native stdout/stderr silenced. ``p`` imports PyBullet when one of its
+names is first read: the task registry (names, expert settings) and training from demos work where
+PyBullet is missing or still being built.
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ import os
 import sys
 from collections.abc import Iterator
 from types import ModuleType
+from typing import Any
 
 
 @contextlib.contextmanager
@@ -51,6 +54,16 @@ def _import_pybullet() -> ModuleType:
     return pybullet
 
 
-p = _import_pybullet()
+class _PyBullet(ModuleType):
+    """Stands for the ``pybullet`` module; the first attribute read imports it and copies its names here, so
+    later reads are plain attribute lookups."""
+
+    def __getattr__(self, name: str) -> Any:
+        module = _import_pybullet()
+        self.__dict__.update({k: v for k, v in vars(module).items() if k not in ("__name__", "__doc__")})
+        return getattr(module, name)
+
+
+p: Any = _PyBullet("pybullet")
 
 __all__ = ["p", "quiet_native_output"]

@@ -5,54 +5,26 @@ from __future__ import annotations
 import contextlib
 import importlib.util
 import logging
-import os
-from dataclasses import dataclass
 from typing import Any, Protocol
 
 import numpy as np
 
 from cliport.env import assets, cameras, heightmap, shapes
+from cliport.env import config as env_config
 from cliport.env.bullet import p
 from cliport.env.bullet import quiet_native_output as _quiet_native_output
+from cliport.env.config import RENDERER_KINDS, EnvConfig, expected_renderer
 from cliport.env.egl import egl_works
 from cliport.env.grippers import Spatula, Suction
 from cliport.env.primitives import PickPlaceSettings, PushSettings, pick_place, push
 from cliport.env.robot import UR5
 from cliport.env.transforms import Pose
-from cliport.utils.config import defaults as config_defaults
 
 log = logging.getLogger(__name__)
 
 
 class ActionError(ValueError):
     """An action that cannot be executed; the message names the offending field."""
-
-
-@dataclass
-class EnvConfig:
-    """Workcell settings; defaults in ``configs/env.toml``.
-
-    Args:
-        camera_scale: camera resolution factor (1.0 renders 640 x 480; 0.5 renders 320 x 240, faster; the
-            fused map is always 320 x 160); demos and validation of one run must use the same value.
-        renderer: "auto" (EGL on an NVIDIA GPU, else TinyRenderer), "egl" or "cpu".
-        sim_hz: physics steps per simulated second.
-        settle_max_steps: steps allowed for the scene to come to rest after an action.
-        settle_speed: objects slower than this (m/s) count as at rest.
-        raw_images: include the three cameras' colour and depth images in every observation.
-    """
-
-    camera_scale: float
-    renderer: str
-    sim_hz: int
-    settle_max_steps: int
-    settle_speed: float
-    raw_images: bool
-
-    @classmethod
-    def defaults(cls, **overrides: Any) -> EnvConfig:
-        """The TOML defaults with the keyword overrides that are not None."""
-        return config_defaults(cls, "env", **overrides)
 
 
 class Task(Protocol):
@@ -71,29 +43,6 @@ class Task(Protocol):
 
     @property
     def lang_goal(self) -> str | None: ...
-
-
-def _gpu_present() -> bool:
-    return os.path.exists("/dev/nvidia0")
-
-
-#: What demos, evaluations and runs record as the renderer: PyBullet's EGL plugin or TinyRenderer.
-RENDERER_KINDS = ("egl", "tiny")
-
-
-def expected_renderer(choice: str) -> str:
-    """The renderer kind ("egl" or "tiny") an Environment with the ``renderer`` setting ``choice`` uses on
-    this machine, found without starting one: "auto" is egl where an NVIDIA GPU (``/dev/nvidia0``) is
-    present and PyBullet's eglRenderer plugin works (:func:`cliport.env.egl.egl_works`). (An Environment
-    falls back to tiny if the plugin still fails to load; its :attr:`Environment.renderer_kind` is what it
-    really uses.)"""
-    if choice not in ("auto", "egl", "cpu"):
-        raise ValueError(f"renderer must be 'auto', 'egl' or 'cpu', got {choice!r}")
-    if choice == "cpu" or (choice == "auto" and not _gpu_present()):
-        return "tiny"
-    if choice == "egl":
-        return "egl"
-    return "egl" if egl_works()[0] else "tiny"
 
 
 class Environment:
@@ -140,7 +89,7 @@ class Environment:
             raise ValueError(f"renderer must be 'auto', 'egl' or 'cpu', got {choice!r}")
         if choice == "cpu":
             return p.ER_TINY_RENDERER, "cpu (TinyRenderer)"
-        if choice == "auto" and not _gpu_present():
+        if choice == "auto" and not env_config.gpu_present():
             # Without a GPU the plugin renders through Mesa's llvmpipe, which loads its own LLVM into
             # the process; importing triton (torch does when building an optimiser) next to it
             # segfaults. TinyRenderer is as fast at the reduced resolution and safe.
@@ -157,7 +106,7 @@ class Environment:
             with _quiet_native_output():
                 plugin = p.loadPlugin(spec.origin, "_eglRendererPlugin", physicsClientId=self.client)
         if plugin >= 0:
-            kind = "GPU" if _gpu_present() else "software OpenGL (Mesa)"
+            kind = "GPU" if env_config.gpu_present() else "software OpenGL (Mesa)"
             return p.ER_BULLET_HARDWARE_OPENGL, f"egl ({kind}, PyBullet eglRenderer plugin)"
         if choice == "egl":
             raise RuntimeError("renderer='egl' was requested but PyBullet's eglRenderer plugin did not load")

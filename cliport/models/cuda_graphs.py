@@ -10,11 +10,12 @@ capture reuses only the pool memory that earlier graphs freed (their intermediat
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import logging
 import threading
 import weakref
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -90,28 +91,56 @@ for _register in (
     _register(_count_registration)
 
 
+_threads = threading.local()
+
+
+def side_stream(device: torch.device) -> Any:
+    """The calling thread's side stream on ``device`` (None off CUDA), made at its first use: every warm-up and
+    capture of the thread runs there. Each stream cuBLAS runs on holds a workspace of its own (32 MiB on Hopper)
+    until the process ends, so a stream per owner or per capture would grow the memory with every agent made."""
+    if device.type != "cuda":
+        return None
+    index = device.index if device.index is not None else torch.cuda.current_device()
+    streams: dict[int, Any] = _threads.__dict__.setdefault("streams", {})
+    if index not in streams:
+        with torch.cuda.device(index):
+            streams[index] = torch.cuda.Stream(index)
+    return streams[index]
+
+
+@contextlib.contextmanager
+def on_side_stream(device: torch.device) -> Iterator[None]:
+    """Run the body on this thread's :func:`side_stream` of ``device`` (a warm-up before a capture), which waits
+    for, and is waited for by, the current stream; off CUDA the body just runs."""
+    if device.type != "cuda":
+        yield
+        return
+    side = side_stream(device)
+    current = torch.cuda.current_stream(device)
+    side.wait_stream(current)
+    with torch.cuda.stream(side):
+        yield
+    current.wait_stream(side)
+
+
 def _capture_cuda(
     fn: Callable[..., torch.Tensor], inputs: tuple[torch.Tensor | None, ...], memory: GraphMemory
 ) -> tuple[torch.cuda.CUDAGraph, torch.Tensor]:
     """Warm ``fn`` up on a side stream and capture it into the shared pool, all on the inputs' device.
 
-    The streams are made here, under the device guard: ``torch.cuda.graph``'s default capture stream is
-    created once per process on whatever device was current then. ``thread_local`` capture: other threads
+    The stream is the thread's :func:`side_stream` of that device: ``torch.cuda.graph``'s default capture
+    stream is created once per process on whatever device was current then. ``thread_local`` capture: other threads
     (a server's, a data loader's) may go on using CUDA while this one captures.
     """
     device = next(t.device for t in inputs if t is not None)
     with torch.cuda.device(device):
         if memory.pool is None:
             memory.pool = torch.cuda.graph_pool_handle()
-        side = torch.cuda.Stream(device)
-        side.wait_stream(torch.cuda.current_stream(device))
-        with torch.cuda.stream(side):
+        with on_side_stream(device):
             for _ in range(WARMUP_ITERS):
                 fn(*inputs)
-        torch.cuda.current_stream(device).wait_stream(side)
         graph = torch.cuda.CUDAGraph()
-        capture_stream = torch.cuda.Stream(device)
-        with torch.cuda.graph(graph, pool=memory.pool, stream=capture_stream, capture_error_mode="thread_local"):
+        with torch.cuda.graph(graph, pool=memory.pool, stream=side_stream(device), capture_error_mode="thread_local"):
             output = fn(*inputs)
     return graph, output
 

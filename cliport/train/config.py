@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from cliport.agents import AgentConfig, agent_class
-from cliport.env.environment import EnvConfig
+from cliport.env.config import EnvConfig
 from cliport.errors import ConfigError
 from cliport.train.recipes import Recipe, get_recipe, recipe_names
 from cliport.utils.config import defaults_file, from_dict, merge, read_defaults, to_dict

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor, wait
 from typing import Any
 
@@ -37,7 +37,7 @@ import torch
 
 from cliport.agents.base import PickPlaceAgent
 from cliport.agents.loss import LossFn, join_terms, optimizer_step
-from cliport.models.cuda_graphs import registration_count
+from cliport.models.cuda_graphs import on_side_stream, registration_count, side_stream
 from cliport.models.preprocess import raw_input
 
 log = logging.getLogger(__name__)
@@ -50,33 +50,19 @@ CAPTURE_DEVICES = {"cuda"}
 INPUTS = ("color", "height", "pick_pix", "place_pix", "place_rot", "sentence")
 
 
-def _capture_cuda(body: Callable[[], None], device: torch.device) -> Any:
-    """Capture ``body`` into a new CUDA graph on ``device`` (``thread_local``: the loader's pin-memory thread
-    may go on allocating pinned memory meanwhile)."""
+def _capture_cuda(body: Callable[[], None], device: torch.device, stream: Any) -> Any:
+    """Capture ``body`` into a new CUDA graph on ``device``, on ``stream`` (``thread_local``: the loader's
+    pin-memory thread may go on allocating pinned memory meanwhile)."""
     with torch.cuda.device(device):
         graph = torch.cuda.CUDAGraph()
-        with torch.cuda.graph(graph, stream=torch.cuda.Stream(device), capture_error_mode="thread_local"):
+        with torch.cuda.graph(graph, stream=stream, capture_error_mode="thread_local"):
             body()
     return graph
 
 
-#: How a step is captured: ``(body, device) -> graph with replay()``. Tests without CUDA replace it with an
-#: eager double that runs ``body`` again at every replay.
-capture: Callable[[Callable[[], None], torch.device], Any] = _capture_cuda
-
-
-@contextlib.contextmanager
-def _side_stream(device: torch.device) -> Iterator[None]:
-    """Run the body on a fresh side stream of ``device`` that waits for, and is waited for by, the current one."""
-    if device.type != "cuda":
-        yield
-        return
-    current = torch.cuda.current_stream(device)
-    side = torch.cuda.Stream(device)
-    side.wait_stream(current)
-    with torch.cuda.stream(side):
-        yield
-    current.wait_stream(side)
+#: How a step is captured: ``(body, device, stream) -> graph with replay()``. Tests without CUDA replace it with
+#: an eager double that runs ``body`` again at every replay.
+capture: Callable[[Callable[[], None], torch.device, Any], Any] = _capture_cuda
 
 
 class TrainStep:
@@ -257,7 +243,7 @@ class TrainStep:
             return
         self.agent.train()
         if self._warmed < WARMUP_STEPS:
-            with _side_stream(self.device):
+            with on_side_stream(self.device):
                 self.optimizer.zero_grad(set_to_none=True)
                 self._body(static)
             self._warmed += 1
@@ -273,7 +259,7 @@ class TrainStep:
         try:
             for group in self.optimizer.param_groups:
                 group["capturable"] = True  # fused Adam's arithmetic is the same either way
-            graph = capture(lambda: self._body(static), self.device)
+            graph = capture(lambda: self._body(static), self.device, side_stream(self.device))
         except Exception as e:  # noqa: BLE001 - any capture failure means: train eagerly
             self.optimizer.zero_grad(set_to_none=True)
             self._fail(f"{type(e).__name__}: {e}")

@@ -31,7 +31,7 @@ from tqdm import tqdm
 
 from cliport.agents.base import PickPlaceAgent
 from cliport.agents.checkpoint import save_weights
-from cliport.env.environment import expected_renderer
+from cliport.env.config import expected_renderer
 from cliport.errors import RunDirError, UserError
 from cliport.train.checks import AgentCheck, CheckCurve
 from cliport.train.config import TrainConfig

@@ -6,6 +6,7 @@ import subprocess
 
 import pytest
 
+from cliport.env import config as env_config
 from cliport.env import egl, environment
 from cliport.env.environment import EnvConfig, Environment, expected_renderer
 
@@ -39,7 +40,7 @@ def test_a_working_probe_is_asked_once(no_answer_yet, monkeypatch) -> None:
 
 
 def test_auto_falls_back_to_tinyrenderer_where_egl_fails_on_a_gpu(monkeypatch, caplog) -> None:
-    monkeypatch.setattr(environment, "_gpu_present", lambda: True)
+    monkeypatch.setattr(env_config, "gpu_present", lambda: True)
     monkeypatch.setenv(egl.PROBE_ENV, "failed: no EGL display")
     assert expected_renderer("auto") == "tiny"
     with Environment(EnvConfig.defaults(camera_scale=0.25, renderer="auto")) as env:
@@ -49,14 +50,14 @@ def test_auto_falls_back_to_tinyrenderer_where_egl_fails_on_a_gpu(monkeypatch, c
 
 
 def test_asking_for_egl_where_it_fails_names_why(monkeypatch) -> None:
-    monkeypatch.setattr(environment, "_gpu_present", lambda: True)
+    monkeypatch.setattr(env_config, "gpu_present", lambda: True)
     monkeypatch.setenv(egl.PROBE_ENV, "failed: no EGL display")
     with pytest.raises(RuntimeError, match="renderer='egl' was requested .* fails here: no EGL display"):
         Environment(EnvConfig.defaults(camera_scale=0.25, renderer="egl"))
 
 
 def test_a_refused_renderer_leaves_no_simulator_connected(monkeypatch) -> None:
-    monkeypatch.setattr(environment, "_gpu_present", lambda: True)
+    monkeypatch.setattr(env_config, "gpu_present", lambda: True)
     monkeypatch.setenv(egl.PROBE_ENV, "failed: no EGL display")
     before = environment.p.connect(environment.p.DIRECT)
     environment.p.disconnect(physicsClientId=before)

@@ -9,6 +9,7 @@ tested in tests/agents/test_cuda_speed.py.
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import gc
 import logging
@@ -295,3 +296,27 @@ def test_warmed_up_forwards_build_no_tensor_from_host_data(name: str, monkeypatc
     monkeypatch.setattr(torch, "tensor", refuse)
     monkeypatch.setattr(torch, "as_tensor", refuse)
     forwards()
+
+
+def test_each_thread_keeps_one_side_stream_per_device(monkeypatch) -> None:
+    # cuBLAS keeps a 32 MiB workspace per stream it ran on for the process's life: a stream per agent left that
+    # much behind every dropped agent on an H200. Stand-in streams: this machine may have no CUDA.
+    made: list[int] = []
+
+    class Stream:
+        def __init__(self, index: int) -> None:
+            made.append(index)
+
+    monkeypatch.setattr(torch.cuda, "Stream", Stream)
+    monkeypatch.setattr(torch.cuda, "device", lambda index: contextlib.nullcontext())
+    monkeypatch.setattr(torch.cuda, "current_device", lambda: 1)
+    monkeypatch.setattr(cuda_graphs, "_threads", threading.local())
+    here = [cuda_graphs.side_stream(torch.device(d)) for d in ("cuda:0", "cuda:0", "cuda", "cuda:1")]
+    assert here[0] is here[1] and here[2] is here[3] and here[0] is not here[2]
+    there: list[object] = []
+    worker = threading.Thread(target=lambda: there.append(cuda_graphs.side_stream(torch.device("cuda:0"))))
+    worker.start()
+    worker.join()
+    assert there[0] is not here[0]
+    assert made == [0, 1, 0]
+    assert cuda_graphs.side_stream(torch.device("cpu")) is None

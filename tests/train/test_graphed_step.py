@@ -52,7 +52,7 @@ def fake_capture(monkeypatch: pytest.MonkeyPatch) -> list:
         real_init(self, *args, **kwargs)
         steps.append(self)
 
-    def capture(body, device):
+    def capture(body, device, stream):
         graph = _Replay(body, steps[-1])
         made.append(graph)
         return graph
@@ -155,7 +155,7 @@ def test_reallocated_weights_are_captured_again(fake_capture, tiny_config) -> No
 
 
 def test_a_failed_capture_trains_eagerly_with_one_warning(monkeypatch, fake_capture, tiny_config, caplog) -> None:
-    def refuse(body, device):
+    def refuse(body, device, stream):
         raise RuntimeError("operation not permitted when stream is capturing")
 
     monkeypatch.setattr(graphed_step, "capture", refuse)
@@ -216,7 +216,7 @@ def test_the_captured_step_neither_reads_the_device_nor_builds_tensors_from_host
     step = TrainStep(agent, optimizer, get_recipe(recipe).loss, observers=(sums.add, watch.observe), graphs=True)
     captured: list[bool] = []
 
-    def strict_capture(body, device):
+    def strict_capture(body, device, stream):
         with monkeypatch.context() as m:
             for attr in ("tensor", "as_tensor", "from_numpy"):
                 real = getattr(torch, attr)

@@ -1,0 +1,62 @@
+"""The workcell's settings and the renderer they choose, apart from the simulator: a training run reads them
+without importing PyBullet."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from typing import Any
+
+from cliport.env.egl import egl_works
+from cliport.utils.config import defaults as config_defaults
+
+
+@dataclass
+class EnvConfig:
+    """Workcell settings; defaults in ``configs/env.toml``.
+
+    Args:
+        camera_scale: camera resolution factor (1.0 renders 640 x 480; 0.5 renders 320 x 240, faster; the
+            fused map is always 320 x 160); demos and validation of one run must use the same value.
+        renderer: "auto" (EGL on an NVIDIA GPU, else TinyRenderer), "egl" or "cpu".
+        sim_hz: physics steps per simulated second.
+        settle_max_steps: steps allowed for the scene to come to rest after an action.
+        settle_speed: objects slower than this (m/s) count as at rest.
+        raw_images: include the three cameras' colour and depth images in every observation.
+    """
+
+    camera_scale: float
+    renderer: str
+    sim_hz: int
+    settle_max_steps: int
+    settle_speed: float
+    raw_images: bool
+
+    @classmethod
+    def defaults(cls, **overrides: Any) -> EnvConfig:
+        """The TOML defaults with the keyword overrides that are not None."""
+        return config_defaults(cls, "env", **overrides)
+
+
+def gpu_present() -> bool:
+    """Whether an NVIDIA GPU is present (its device node), the condition for trying EGL."""
+    return os.path.exists("/dev/nvidia0")
+
+
+#: What demos, evaluations and runs record as the renderer: PyBullet's EGL plugin or TinyRenderer.
+RENDERER_KINDS = ("egl", "tiny")
+
+
+def expected_renderer(choice: str) -> str:
+    """The renderer kind ("egl" or "tiny") an Environment with the ``renderer`` setting ``choice`` uses on
+    this machine, found without starting one: "auto" is egl where an NVIDIA GPU (``/dev/nvidia0``) is
+    present and PyBullet's eglRenderer plugin works (:func:`cliport.env.egl.egl_works`). (An Environment
+    falls back to tiny if the plugin still fails to load; its :attr:`Environment.renderer_kind` is what it
+    really uses.)"""
+    if choice not in ("auto", "egl", "cpu"):
+        raise ValueError(f"renderer must be 'auto', 'egl' or 'cpu', got {choice!r}")
+    if choice == "cpu" or (choice == "auto" and not gpu_present()):
+        return "tiny"
+    if choice == "egl":
+        return "egl"
+    return "egl" if egl_works()[0] else "tiny"
