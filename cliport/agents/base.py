@@ -18,7 +18,7 @@ from cliport.agents.checkpoint import CHECKPOINT_FORMAT, pretrained_file, read_p
 from cliport.agents.config import AgentConfig
 from cliport.agents.decode import action_targets, actions, decode_pick, decode_place
 from cliport.agents.device_options import DEVICE_OPTIONS, apply_layout_and_precision, option_applies
-from cliport.agents.loss import optimizer_step, pick_place_terms, terms_info
+from cliport.agents.loss import optimizer_step, pick_place_terms, pick_term, place_term, terms_info
 from cliport.agents.registry import agent_class, agent_from_payload
 from cliport.errors import CheckpointError, ConfigError
 from cliport.models.cuda_graphs import GraphedForward, GraphMemory
@@ -271,6 +271,30 @@ class PickPlaceAgent(nn.Module):
         x = raw_input(color, height)
         pick_logits, place_logits = self.pick(x, sentence), self.place(x, pick_pix, sentence)
         return pick_place_terms(pick_logits, place_logits, pick_pix, place_pix, place_rot, loss)
+
+    def pick_loss_terms(
+        self, x: torch.Tensor, pick_pix: torch.Tensor, sentence: torch.Tensor | None, loss: str = "sample_ce"
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """The pick half of :meth:`loss_terms`: raw input (B, 6, H, W) (:func:`~cliport.models.preprocess.raw_input`),
+        target pixels (B, 2) int64, sentence features -> the pick's share of the loss to minimise and its per-sample
+        cross-entropy (scalars, :func:`~cliport.agents.loss.pick_term`). No parameter is shared with the place
+        half, so the two can be differentiated separately, even at once (see
+        :class:`~cliport.train.graphed_step.TrainStep`)."""
+        return pick_term(self.pick(x, sentence), pick_pix, loss)
+
+    def place_loss_terms(
+        self,
+        x: torch.Tensor,
+        pick_pix: torch.Tensor,
+        place_pix: torch.Tensor,
+        place_rot: torch.Tensor,
+        sentence: torch.Tensor | None,
+        loss: str = "sample_ce",
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """The place half of :meth:`loss_terms`: raw input (B, 6, H, W), pick and place target pixels (B, 2) and
+        rotation bins (B,) int64, sentence features -> the place's share of the loss to minimise and its per-sample
+        cross-entropy (scalars, :func:`~cliport.agents.loss.place_term`)."""
+        return place_term(self.place(x, pick_pix, sentence), place_pix, place_rot, loss)
 
     def compute_loss(self, batch: dict[str, Any], loss: str = "sample_ce") -> tuple[torch.Tensor, dict[str, float]]:
         """Cross-entropy over all pick pixels plus over all place pixels x rotations, averaged over the batch.

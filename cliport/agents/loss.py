@@ -17,6 +17,35 @@ LossFn = Callable[[dict[str, Any]], tuple[torch.Tensor, Any]]
 TERMS = ("loss", "pick_loss", "place_loss")
 
 
+def pick_term(
+    pick_logits: torch.Tensor, pick_pix: torch.Tensor, loss: str = "sample_ce"
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Pick logits (B, H, W) against target pixels (B, 2) (row, col), int64: the pick's share of the loss to minimise
+    and its per-sample cross-entropy (both scalars; see :func:`pick_place_terms`)."""
+    w = pick_logits.shape[-1]
+    pick_loss = F.cross_entropy(pick_logits.flatten(1).float(), pick_pix[:, 0] * w + pick_pix[:, 1])
+    return _minimised(pick_loss, pick_logits, loss), pick_loss
+
+
+def place_term(
+    place_logits: torch.Tensor, place_pix: torch.Tensor, place_rot: torch.Tensor, loss: str = "sample_ce"
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Place logits (B, R, H, W) against target pixels (B, 2) and rotation bins (B,), int64: the place's share of
+    the loss to minimise and its per-sample cross-entropy (both scalars; see :func:`pick_place_terms`)."""
+    h, w = place_logits.shape[-2:]
+    place_target = (place_rot * h + place_pix[:, 0]) * w + place_pix[:, 1]
+    place_loss = F.cross_entropy(place_logits.flatten(1).float(), place_target)
+    return _minimised(place_loss, place_logits, loss), place_loss
+
+
+def _minimised(cross_entropy: torch.Tensor, logits: torch.Tensor, loss: str) -> torch.Tensor:
+    if loss == "cell_mean":
+        return cross_entropy / logits[0].numel()
+    if loss != "sample_ce":
+        raise ValueError(f"unknown loss {loss!r}; choose cell_mean or sample_ce")
+    return cross_entropy
+
+
 def pick_place_terms(
     pick_logits: torch.Tensor,
     place_logits: torch.Tensor,
@@ -32,20 +61,17 @@ def pick_place_terms(
 
     ``loss``: ``sample_ce``, each map's cross-entropy over all its cells, averaged over the batch (Ravens');
     ``cell_mean``, each map's cross-entropy divided by its cells, H * W for pick and R * H * W for place (the
-    reference CLIPort's mean of ``-label * log_softmax`` over the map).
+    reference CLIPort's mean of ``-label * log_softmax`` over the map). The loss is the sum of the two heads'
+    shares (:func:`pick_term`, :func:`place_term`), so each head's gradient is that of its own share.
     """
-    h, w = pick_logits.shape[-2:]
-    pick_target = pick_pix[:, 0] * w + pick_pix[:, 1]
-    place_target = (place_rot * h + place_pix[:, 0]) * w + place_pix[:, 1]
-    pick_loss = F.cross_entropy(pick_logits.flatten(1).float(), pick_target)
-    place_loss = F.cross_entropy(place_logits.flatten(1).float(), place_target)
-    total = pick_loss + place_loss
-    terms = torch.stack([total, pick_loss, place_loss]).detach()
-    if loss == "cell_mean":
-        total = pick_loss / pick_logits[0].numel() + place_loss / place_logits[0].numel()
-    elif loss != "sample_ce":
-        raise ValueError(f"unknown loss {loss!r}; choose cell_mean or sample_ce")
-    return total, terms
+    pick_share, pick_loss = pick_term(pick_logits, pick_pix, loss)
+    place_share, place_loss = place_term(place_logits, place_pix, place_rot, loss)
+    return pick_share + place_share, join_terms(pick_loss, place_loss)
+
+
+def join_terms(pick_loss: torch.Tensor, place_loss: torch.Tensor) -> torch.Tensor:
+    """The per-sample cross-entropies of the two heads as the (3,) terms of :data:`TERMS`, detached."""
+    return torch.stack([pick_loss + place_loss, pick_loss, place_loss]).detach()
 
 
 def terms_info(terms: torch.Tensor) -> dict[str, float]:

@@ -58,6 +58,13 @@ class TrainConfig:
         compile: run the agent's loss through ``torch.compile`` (forward and loss fused into generated kernels,
             the backward through AOTAutograd), inside the captured graph on CUDA; the first steps compile
             (minutes at the published size). Off by default; single-process runs only.
+        time_budget_s: stop training once this many seconds of the training loop (its checks and saves
+            included, summed over resumes) have passed, at most ``n_steps``; 0: no budget. The step it stops at is
+            checkpointed as ``n_steps`` would be. The step count then depends on the machine's speed.
+        parallel_heads: on the CPU, each eager step differentiates the pick net's and the place nets' halves of the
+            loss at once, in two threads with half the intra-op threads each (one backward elsewhere, and with
+            ``compile``); the same gradients to float rounding, a step ~0.65x the time on 2 cores
+            (docs/language-lesson.md). Not under DDP.
         agent_config: the agent's own settings (its config class; defaults in configs/<agent>.toml).
         env: workcell settings of the validation episodes (defaults in configs/env.toml).
     """
@@ -90,6 +97,8 @@ class TrainConfig:
     # Defaults only so that config.json files of runs saved before these settings existed load.
     train_graphs: bool = True
     compile: bool = False
+    parallel_heads: bool = False
+    time_budget_s: float = 0.0
 
     @classmethod
     def build(cls, overrides: Mapping[str, Any] | None = None, base: Mapping[str, Any] | None = None) -> TrainConfig:
@@ -140,6 +149,7 @@ class TrainConfig:
             "val_episodes": 0,
             "checkpoint_every": 0,
             "rotation_aug": 0,
+            "time_budget_s": 0,
         }
         for key, low in minimum.items():
             if getattr(self, key) < low:

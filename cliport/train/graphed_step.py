@@ -30,13 +30,15 @@ from __future__ import annotations
 import contextlib
 import logging
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor, wait
 from typing import Any
 
 import torch
 
 from cliport.agents.base import PickPlaceAgent
-from cliport.agents.loss import LossFn, optimizer_step
+from cliport.agents.loss import LossFn, join_terms, optimizer_step
 from cliport.models.cuda_graphs import on_side_stream, registration_count, side_stream
+from cliport.models.preprocess import raw_input
 
 log = logging.getLogger(__name__)
 
@@ -79,6 +81,10 @@ class TrainStep:
             inside the captured graph where there is one.
         model: a module whose ``forward(batch) -> (loss, terms)`` replaces the agent's loss on the eager path
             (a DDP-wrapped agent; then ``graphs`` and ``compile`` must be False).
+        parallel_heads: on the CPU, differentiate the pick half and the place half of the loss at once, each in
+            a thread of its own with half the process's intra-op threads (:meth:`_heads_at_once`); elsewhere, with
+            ``compile``, autocast or ``model``, one backward as always. The two halves share no parameter, so
+            the gradients are those of the joint loss, rounded as kernels on fewer threads round them.
     """
 
     def __init__(
@@ -91,6 +97,7 @@ class TrainStep:
         graphs: bool = True,
         compile: bool = False,
         model: LossFn | None = None,
+        parallel_heads: bool = False,
     ) -> None:
         if model is not None and (graphs or compile):
             raise ValueError("a wrapped model (DDP) trains eagerly: pass graphs=False and compile=False")
@@ -110,6 +117,12 @@ class TrainStep:
             if self.device.type == "cpu":
                 options = {"layout_optimization": False}
             self.loss_fn = torch.compile(agent.loss_terms, dynamic=False, options=options)
+        #: Whether eager steps differentiate the pick and place halves at once (see ``parallel_heads``).
+        self.parallel_heads = (
+            parallel_heads and self.device.type == "cpu" and not compile and autocast_dtype is None and model is None
+        )
+        self._head_threads = max(1, torch.get_num_threads() // 2)
+        self._place_thread = ThreadPoolExecutor(1, thread_name_prefix="place-head") if self.parallel_heads else None
         #: Why capturing failed (then every step is eager), or None.
         self.failed: str | None = None
         #: Steps run so far by replaying the graph, and eagerly (warm-up steps and fall-backs included).
@@ -180,8 +193,42 @@ class TrainStep:
         inputs = {k: None if t is None else t.to(self.device, non_blocking=True) for k, t in host.items()}
         self.agent.train()
         self.optimizer.zero_grad(set_to_none=True)
-        self._body(inputs)
+        if self.parallel_heads:
+            self._heads_at_once(inputs)
+        else:
+            self._body(inputs)
         self.eager_steps += 1
+
+    def _heads_at_once(self, inputs: dict[str, Any]) -> None:
+        """The eager step with the place half's forward and backward in a second thread while this one does the
+        pick half's, each on half the intra-op threads: on a 2-core CPU, where one small net's kernels use a
+        second core poorly, a step takes ~0.65x the time (docs/language-lesson.md has the measurements)."""
+        assert self._place_thread is not None
+        x = raw_input(inputs["color"], inputs["height"])
+        pick_pix, sentence = inputs["pick_pix"], inputs["sentence"]
+
+        def place() -> torch.Tensor:
+            share, place_loss = self.agent.place_loss_terms(
+                x, pick_pix, inputs["place_pix"], inputs["place_rot"], sentence, self.loss
+            )
+            share.backward()
+            return place_loss
+
+        threads = torch.get_num_threads()
+        torch.set_num_threads(self._head_threads)  # a new thread takes this count when it first computes
+        try:
+            other = self._place_thread.submit(place)
+            try:
+                share, pick_loss = self.agent.pick_loss_terms(x, pick_pix, sentence, self.loss)
+                share.backward()
+            except BaseException:
+                wait([other])
+                raise
+            place_loss = other.result()
+        finally:
+            torch.set_num_threads(threads)
+        self.optimizer.step()
+        self._observe(join_terms(pick_loss, place_loss))
 
     def _graphed(self, host: dict[str, torch.Tensor | None]) -> None:
         static = self._static

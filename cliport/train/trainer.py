@@ -5,7 +5,12 @@ read every ``log_every`` steps.
 
 The run folder's layout is :mod:`cliport.utils.run_dir`. Validation is not this module's business: the
 caller passes a :class:`Validator` (``cliport.evaluation.validation`` has the simulator one), which
-hears of every saved checkpoint and is finished when training ends.
+hears of every saved checkpoint and is finished when training ends, or an
+:class:`~cliport.train.checks.AgentCheck` that scores the training agent itself at the steps it asks for (the
+language lesson's held-out scenes), whose best step's checkpoint is kept.
+
+A run with a ``time_budget_s`` trains until that many seconds of its training loop (checks and saves included,
+summed over resumes) have passed, or ``n_steps``; the step it stops at is checkpointed like ``n_steps``.
 """
 
 from __future__ import annotations
@@ -28,6 +33,7 @@ from cliport.agents.base import PickPlaceAgent
 from cliport.agents.checkpoint import save_weights
 from cliport.env.config import expected_renderer
 from cliport.errors import RunDirError, UserError
+from cliport.train.checks import AgentCheck, CheckCurve
 from cliport.train.config import TrainConfig
 from cliport.train.dead_maps import DeadMapWatch
 from cliport.train.graphed_step import TrainStep
@@ -164,9 +170,12 @@ def train(
     progress: bool = True,
     validator: Validator | None = None,
     step_hook: Callable[[int], None] | None = None,
+    check: AgentCheck | None = None,
 ) -> dict[str, Any]:
     """Train (or resume) a run; returns a summary. ``validator`` (on rank 0) scores the checkpoints.
-    ``step_hook(step)`` is called after every optimiser step (a benchmark's profiler)."""
+    ``step_hook(step)`` is called after every optimiser step (a benchmark's profiler; the lesson's speed line).
+    ``check`` (single process only) scores the agent at the steps it asks for and at the last step; the best
+    step's scheduled checkpoint is kept (``RUN/held_out.json``, :mod:`cliport.train.checks`)."""
     from cliport.agents import make_agent, read_checkpoint
     from cliport.data.dataset import DemoDataset
 
@@ -211,7 +220,10 @@ def train(
                 file=sys.stderr,
             )
 
+    if check is not None and world > 1:
+        raise TrainError("checks of the training agent run in a single process, not under DDP")
     step = 0
+    trained_before = 0.0  # seconds of training loop in earlier attempts of this run
     if resume and os.path.exists(last_path):
         payload = read_checkpoint(last_path)
         if payload["agent"] != config.agent:
@@ -222,6 +234,7 @@ def train(
         agent.load_trainable_state_dict(payload["state_dict"])
         load_optimizer_state(optimizer, payload["trainer"]["optimizer"])  # into this device's layout and Adam
         step = int(payload["trainer"]["step"])
+        trained_before = float(payload["trainer"].get("trained_s", 0.0))
         torch.set_rng_state(payload["trainer"]["torch_rng"])
     if rank == 0:
         os.makedirs(run.root, exist_ok=True)
@@ -244,6 +257,7 @@ def train(
         graphs=config.train_graphs and world == 1,
         compile=config.compile and world == 1,
         model=model,
+        parallel_heads=config.parallel_heads and world == 1,
     )
     loader: DataLoader = training_loader(
         dataset,
@@ -255,6 +269,14 @@ def train(
     )
     schedule = set(checkpoint_schedule(config))
     fields = ["step", "loss", "pick_loss", "place_loss", "steps_per_second", "samples_per_second", "elapsed_s"]
+    curve = CheckCurve(run.held_out, check.describe(), step) if check is not None and rank == 0 else None
+    loop_start = time.perf_counter()
+
+    def trained_s() -> float:
+        return trained_before + time.perf_counter() - loop_start
+
+    def out_of_time() -> bool:
+        return config.time_budget_s > 0 and trained_s() >= config.time_budget_s
 
     def save(kind: int | str) -> None:
         if rank != 0:
@@ -265,6 +287,7 @@ def train(
                 "step": step,
                 "optimizer": optimizer.state_dict(),
                 "torch_rng": torch.get_rng_state(),
+                "trained_s": round(trained_s(), 3),
             }
         save_torch(payload, run.checkpoint(kind))
         if isinstance(kind, int):  # a scheduled step, not "last"
@@ -282,16 +305,13 @@ def train(
             writer = csv.DictWriter(metrics_file, fieldnames=fields) if metrics_file is not None else None
             if writer is not None and metrics_file is not None and metrics_file.tell() == 0:
                 writer.writeheader()
-            agent.train()
-            while step < config.n_steps:
-                train_step(_next_batch(batches))
-                step += 1
-                sums.count()
-                window_steps += 1
-                bar.update(1)
-                if step_hook is not None:
-                    step_hook(step)
-                if step % config.log_every == 0 or step == config.n_steps:
+            ended_final = False
+
+            def end_of_step(final: bool) -> None:
+                """Log, check and save after ``step`` as the schedule asks (``final``: the run's last step)."""
+                nonlocal window_start, window_steps, ended_final
+                ended_final = final
+                if window_steps and (step % config.log_every == 0 or final):
                     row: dict[str, Any] = {k: round(v, 5) for k, v in sums.read().items()}  # waits for the device
                     watch.check()
                     elapsed = time.perf_counter() - window_start
@@ -311,12 +331,48 @@ def train(
                         log_gpu_memory(tensorboard, device, step)
                     bar.set_postfix(loss=f"{row['loss']:.3f}", steps_s=f"{row['steps_per_second']:.2f}")
                     window_start, window_steps = time.perf_counter(), 0
-                if step in schedule or step % config.save_last_every == 0:
+                checking = (
+                    curve is not None and check is not None and (check.due(step) or final) and not curve.has(step)
+                )
+                scheduled = step in schedule or final
+                if scheduled or checking or step % config.save_last_every == 0:
                     watch.check()  # never save a run whose map died since the last row
-                if step in schedule:
+                if scheduled:
                     save(step)
-                if step in schedule or step % config.save_last_every == 0:
+                replaced = None
+                if checking:
+                    assert curve is not None and check is not None
+                    previous = curve.best
+                    checked, best = curve.run(check, step, agent)
+                    agent.train()
+                    bar.write(_check_line(checked, best))
+                    if best and tensorboard is not None:
+                        tensorboard.add_scalar("held_out/score", checked["score"], step)
+                    if best and not scheduled:
+                        save(step)
+                    if best and previous is not None and previous["step"] not in schedule:
+                        replaced = previous["step"]
+                if scheduled or checking or step % config.save_last_every == 0:
                     save("last")
+                if replaced is not None:
+                    _remove_checkpoint(run, replaced)  # after last.pt: a resume from before it still finds it
+
+            agent.train()
+            while step < config.n_steps and not out_of_time():
+                train_step(_next_batch(batches))
+                step += 1
+                sums.count()
+                window_steps += 1
+                bar.update(1)
+                if step_hook is not None:
+                    step_hook(step)
+                end_of_step(step == config.n_steps or out_of_time())
+            if step and not ended_final and (step == config.n_steps or out_of_time()):
+                # The budget ran out during the last step's check or saves, or an earlier attempt stopped before
+                # its last step was saved: finish it as the last step.
+                needed = not os.path.exists(run.checkpoint(step)) or (curve is not None and not curve.has(step))
+                if needed:
+                    end_of_step(True)
     except KeyboardInterrupt:
         save("last")
         raise
@@ -325,6 +381,10 @@ def train(
         if tensorboard is not None:
             tensorboard.close()
     summary: dict[str, Any] = {"run_dir": run.root, "steps": step, "checkpoints": run.checkpoint_steps()}
+    summary["trained_s"] = round(trained_s(), 1)
+    summary["stopped_by"] = "time_budget" if step < config.n_steps else "n_steps"
+    if curve is not None and curve.best is not None:
+        summary["held_out"] = {"best_step": curve.best["step"], "best_score": curve.best["score"]}
     # How this process's steps ran: replays of the captured CUDA graph, eager steps (warm-up included).
     summary["step_kinds"] = {"graph_replays": train_step.replays, "eager": train_step.eager_steps}
     if train_step.failed:
@@ -335,6 +395,18 @@ def train(
         dist.barrier()
     summary["rank"] = rank
     return summary
+
+
+def _check_line(row: dict[str, Any], best: bool) -> str:
+    numbers = ", ".join(f"{k} {v}" for k, v in row.items() if k not in ("step", "score", "seconds"))
+    return f"check at step {row['step']}: {numbers} ({row['seconds']:.0f} s){'; the best so far' if best else ''}"
+
+
+def _remove_checkpoint(run: RunDir, step: int) -> None:
+    """Delete a scheduled checkpoint a better one replaced (its .pt and .safetensors)."""
+    for path in (run.checkpoint(step), run.weights(step)):
+        with contextlib.suppress(FileNotFoundError):
+            os.remove(path)
 
 
 def load_resume_state(path: str) -> dict[str, Any]:

@@ -12,6 +12,8 @@
     RUN/checkpoints/step-001000.safetensors ...  the same trainable weights as safetensors
     RUN/checkpoints/last.pt              rolling resume point (also optimiser, step and RNG state)
     RUN/val.json                         validation success of every scheduled checkpoint and the best one
+    RUN/held_out.json                    checks of the agent while it trained (the language lesson's) and the best
+                                         step, whose scheduled checkpoint is kept
     RUN/eval/TASK-MODE-CKPT.json         evaluation results (cliport-eval); RUN/eval/tensorboard/ their events
 """
 
@@ -29,6 +31,7 @@ TENSORBOARD_VAL = "val"
 CHECKPOINTS = "checkpoints"
 LAST = "last"
 VAL = "val.json"
+HELD_OUT = "held_out.json"
 EVAL = "eval"
 _STEP_FILE = re.compile(r"step-(\d{6})\.pt")
 
@@ -64,6 +67,11 @@ class RunDir:
     @property
     def val(self) -> str:
         return os.path.join(self.root, VAL)
+
+    @property
+    def held_out(self) -> str:
+        """``RUN/held_out.json``: the checks made while training (:mod:`cliport.train.checks`)."""
+        return os.path.join(self.root, HELD_OUT)
 
     @property
     def eval_dir(self) -> str:
@@ -116,12 +124,16 @@ class RunDir:
         return [int(which)]
 
     def best_step(self) -> int | None:
-        """The step val.json chose, or None without validation results."""
-        if not os.path.exists(self.val):
-            return None
+        """The step val.json chose, else the step the checks made while training chose (held_out.json), or None
+        without either."""
         from cliport.utils.files import read_json
 
-        return int(read_json(self.val)["best_step"])
+        if os.path.exists(self.val):
+            return int(read_json(self.val)["best_step"])
+        if os.path.exists(self.held_out):
+            step = read_json(self.held_out).get("best_step")
+            return None if step is None else int(step)
+        return None
 
     def is_run(self) -> bool:
         """Whether the folder holds a run (its resolved config)."""

@@ -78,3 +78,28 @@ def test_up_block_concatenates_skip_first_and_pads_odd_sizes() -> None:
     with torch.no_grad():
         up.conv[0].weight[:, :4] = 0
     assert torch.equal(up(x, skip), up(x, torch.randn_like(skip)))
+
+
+def test_up_block_over_a_frozen_skip_trains_as_plain_autograd_would() -> None:
+    """The backward that leaves out the frozen skip's gradient gives the same weight gradients (bitwise) and the
+    same gradient for the decoder's own input (to rounding) as autograd over the concatenation."""
+    torch.manual_seed(0)
+    up = UpBlock(40 + 8, 6)
+    x, skip = torch.randn(1, 8, 4, 5, requires_grad=True), torch.randn(1, 40, 9, 10)
+    target = torch.randn(1, 6, 9, 10)
+
+    def gradients(joined_by_autograd: bool) -> tuple[torch.Tensor, list[torch.Tensor]]:
+        up.zero_grad(set_to_none=True)
+        x.grad = None
+        s = skip.clone().requires_grad_(True) if joined_by_autograd else skip  # a skip needing its gradient
+        out = up(x, s)
+        (out * target).sum().backward()
+        return out.detach(), [x.grad.clone(), *(p.grad.clone() for p in up.parameters())]
+
+    out, grads = gradients(joined_by_autograd=False)
+    plain_out, plain_grads = gradients(joined_by_autograd=True)
+    assert torch.equal(out, plain_out)
+    torch.testing.assert_close(grads[0], plain_grads[0], rtol=1e-5, atol=1e-6)
+    assert all(torch.equal(a, b) for a, b in zip(grads[1:], plain_grads[1:], strict=True))
+    with torch.no_grad():  # acting: the plain forward, the same values
+        assert torch.equal(up(x, skip), out)
