@@ -193,7 +193,7 @@ class _ConvOverFrozenSkip(torch.autograd.Function):
     """
 
     @staticmethod
-    def forward(  # type: ignore[override]  # autograd.Function's forward takes the context and any inputs
+    def forward(
         ctx: Any,
         skip: torch.Tensor,
         x: torch.Tensor,
@@ -209,9 +209,7 @@ class _ConvOverFrozenSkip(torch.autograd.Function):
         return F.conv2d(joined, weight, bias, *settings)
 
     @staticmethod
-    def backward(  # type: ignore[override]  # autograd.Function's backward takes the context and any gradients
-        ctx: Any, grad: torch.Tensor
-    ) -> tuple[None, torch.Tensor, torch.Tensor, torch.Tensor | None, None]:
+    def backward(ctx: Any, grad: torch.Tensor) -> tuple[None, torch.Tensor, torch.Tensor, torch.Tensor | None, None]:
         joined, weight = ctx.saved_tensors
         stride, padding, dilation, groups = ctx.settings
         bias_sizes = [weight.shape[0]] if ctx.has_bias else None
