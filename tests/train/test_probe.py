@@ -1,0 +1,44 @@
+"""The training-speed probe: real steps of the configured agent on a synthetic batch."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from cliport.train import probe
+from cliport.train.config import TrainConfig
+
+
+def _config(tmp_path, agent: str, **agent_config: object) -> TrainConfig:
+    return TrainConfig.build({
+        "agent": agent, "task": "put-one-block-in-bowl-seen-colors", "n_steps": 10, "batch_size": 1,
+        "data_dir": str(tmp_path), "run_dir": str(tmp_path / "run"), "device": "cpu", "recipe": "ravens",
+        "agent_config": {"width": 0.125, "n_rotations": 1, **agent_config},
+    })  # fmt: skip
+
+
+def test_the_probe_trains_the_configured_agent_and_leaves_the_random_state(tmp_path, monkeypatch) -> None:
+    steps: list[tuple[str, int]] = []
+    real = probe.TrainStep.__call__
+
+    def counted(self, batch):
+        steps.append((self.agent.name, batch["color"].shape[0]))
+        return real(self, batch)
+
+    monkeypatch.setattr(probe.TrainStep, "__call__", counted)
+    torch.manual_seed(7)
+    expected = torch.rand(3)
+    torch.manual_seed(7)
+    seconds = probe.step_seconds(
+        _config(tmp_path, "two_stream", map_scale=0.5, clip_weights="random", center_sentences=True),
+        steps=2,
+        warmup=1,
+    )
+    assert torch.equal(torch.rand(3), expected)
+    assert seconds > 0
+    assert steps == [("two_stream", 1)] * 3
+
+
+def test_the_probe_refuses_no_steps(tmp_path) -> None:
+    with pytest.raises(ValueError, match="steps >= 1"):
+        probe.step_seconds(_config(tmp_path, "transporter_only"), steps=0)
