@@ -33,7 +33,7 @@ from typing import Any
 import torch
 
 from cliport import tasks
-from cliport.agents import agent_class, agent_names, load_agent
+from cliport.agents import agent_class, agent_names, load_agent, read_checkpoint
 from cliport.cli.common import OneLineParser, run_cli
 from cliport.data.generate import DemoConfig, generate
 from cliport.errors import ConfigError, RunDirError
@@ -41,10 +41,12 @@ from cliport.evaluation.evaluate import evaluate
 from cliport.evaluation.free_form import run_instruction
 from cliport.evaluation.instruction_following import instruction_following, scene_instruction, two_instructions_figure
 from cliport.train.config import TrainConfig
+from cliport.train.probe import step_seconds
 from cliport.train.recipes import recipe_names
 from cliport.train.trainer import load_run_config, train
 from cliport.utils.config import read_defaults
-from cliport.utils.files import write_json
+from cliport.utils.files import read_json, write_json
+from cliport.utils.run_dir import RunDir
 from cliport.utils.tensorboard import log_result, summary_writer
 
 
@@ -76,7 +78,24 @@ def parse_args(device: str) -> Any:
         help="output folder (demos, run, pictures, results.json)",
     )
     parser.add_argument("--demos", type=int, default=defaults["demos"], help="oracle demonstrations to train on")
-    parser.add_argument("--steps", type=int, default=per_device["steps"], help="training steps")
+    parser.add_argument(
+        "--steps", type=int, default=per_device["steps"], help="training steps (with --minutes: at most this many)"
+    )
+    parser.add_argument(
+        "--minutes",
+        type=float,
+        default=per_device.get("train_minutes", 0.0),
+        help="train for this many minutes (checks and saves included) instead of a fixed step count; 0: --steps",
+    )
+    parser.add_argument(
+        "--check-every",
+        type=int,
+        default=defaults.get("check_every", 0),
+        help="steps between checks on held-out validation scenes while training (the best one is tested); 0: none",
+    )
+    parser.add_argument(
+        "--check-scenes", type=int, default=defaults.get("check_scenes", 0), help="validation scenes of each check"
+    )
     parser.add_argument("--batch-size", type=int, default=defaults["batch_size"])
     parser.add_argument("--width", type=float, default=per_device["width"], help="network width (1.0 = published)")
     parser.add_argument(
@@ -119,6 +138,10 @@ def parse_args(device: str) -> Any:
     for name in ("demos", "steps", "batch_size", "episodes"):
         if getattr(args, name) < 1:
             raise ConfigError(f"--{name.replace('_', '-')} must be at least 1, got {getattr(args, name)}")
+    for name in ("minutes", "check_every", "check_scenes"):
+        if getattr(args, name) < 0:
+            raise ConfigError(f"--{name.replace('_', '-')} must be at least 0, got {getattr(args, name)}")
+    args.aims = defaults.get("aims")
     tasks.resolve(args.task)
     if args.center_sentences and not agent_class(args.agent).uses_language:
         print(f"note: {args.agent} reads no instruction, so there are no sentence features to centre", file=sys.stderr)
@@ -144,7 +167,9 @@ def resolve_clip_weights(args: Any) -> str | None:
     return "random"
 
 
-def train_config(args: Any, data_dir: str, run_dir: str, n_rotations: int, clip: str | None) -> TrainConfig:
+def train_config(
+    args: Any, data_dir: str, run_dir: str, n_rotations: int, clip: str | None, check_saved: bool = True
+) -> TrainConfig:
     agent_config: dict[str, Any] = {"width": args.width, "n_rotations": n_rotations, "map_scale": args.map_scale}
     if args.lr is not None:
         agent_config["lr"] = args.lr
@@ -165,13 +190,14 @@ def train_config(args: Any, data_dir: str, run_dir: str, n_rotations: int, clip:
             "seed": args.seed,
             "val_episodes": 0,
             "checkpoint_steps": [args.steps],
+            "time_budget_s": args.minutes * 60,
             "num_workers": 1,
             "every_instruction": args.every_instruction,
             "agent_config": agent_config,
             "env": {"camera_scale": args.camera_scale},
         }
     )
-    if os.path.exists(os.path.join(run_dir, "config.json")):
+    if check_saved and os.path.exists(os.path.join(run_dir, "config.json")):
         saved = load_run_config(run_dir).to_dict()
         changed = sorted(k for k, v in config.to_dict().items() if saved.get(k) != v)
         if changed:
@@ -182,15 +208,67 @@ def train_config(args: Any, data_dir: str, run_dir: str, n_rotations: int, clip:
     return config
 
 
+def machine_speed(config: TrainConfig, args: Any, device: str) -> dict[str, Any]:
+    """Time a few training steps of the run's agent on a synthetic batch and say what that means for the run (the
+    lesson's first line)."""
+    seconds = step_seconds(config)
+    kernels = torch.backends.cpu.get_cpu_capability() if device == "cpu" else torch.cuda.get_device_name()
+    where = f"{torch.get_num_threads()} CPU threads, {kernels} kernels" if device == "cpu" else kernels
+    if args.minutes > 0:
+        steps = min(args.steps, int(args.minutes * 60 / seconds))
+        means = (
+            f"so the {args.minutes:g}-minute training budget fits about {steps} steps (at most {args.steps}); a "
+            "slower machine trains fewer steps in the same time (docs/language-lesson.md has the measured runs)"
+        )
+    else:
+        steps = args.steps
+        means = f"so {args.steps} steps take about {args.steps * seconds / 60:.1f} minutes"
+    print(f"machine: {where}; a training step takes {seconds:.2f} s, {means}")
+    return {"device": where, "probe_step_s": round(seconds, 3), "expected_steps": steps}
+
+
+def held_out_check(args: Any) -> Any:
+    """The lesson's checks on held-out validation scenes while it trains, or None."""
+    if args.check_every < 1 or args.check_scenes < 1:
+        return None
+    from cliport.evaluation.held_out import HeldOutCheck, record_scenes
+
+    scenes = record_scenes(args.task, args.check_scenes, args.camera_scale)
+    return HeldOutCheck(scenes, args.check_every, start=args.check_every)
+
+
+def aims_verdict(aims: dict[str, float], result: dict[str, Any], following: dict[str, Any], total_s: float) -> dict:
+    """Whether the run met the lesson's aims (``[language.aims]``): solved and followed rates, minutes."""
+    solved = result["success_rate"]
+    got = {"solved": solved, "followed": following["rate"], "minutes": total_s / 60}
+    missed = [
+        f"{name} {100 * got[name]:.0f} % (aim {100 * aims[name]:.0f} %)"
+        for name in ("solved", "followed")
+        if got[name] < aims[name]
+    ]
+    if got["minutes"] > aims["minutes"]:
+        missed.append(f"{got['minutes']:.1f} minutes (aim {aims['minutes']:g})")
+    head = (
+        f"The lesson's aims (at least {100 * aims['solved']:.0f} % solved, {100 * aims['followed']:.0f} % of swaps "
+        f"followed, within {aims['minutes']:g} minutes): "
+    )
+    return {**got, "met": not missed, "line": head + ("met." if not missed else "not met: " + "; ".join(missed) + ".")}
+
+
 def main() -> None:
     device = "cuda" if torch.cuda.is_available() else "cpu"
     args = parse_args(device)
     n_rotations = args.n_rotations or (36 if tasks.place_yaw_informative(args.task) else 1)
     data_dir, run_dir = os.path.join(args.out, "data"), os.path.join(args.out, "run")
-    clip = resolve_clip_weights(args)
-    config = train_config(args, data_dir, run_dir, n_rotations, clip)
     timings: dict[str, float] = {}
     start = time.perf_counter()
+    machine = None
+    if args.language:  # the first line: this machine's speed (the weights' values do not change it)
+        probe_clip = "random" if "clip_weights" in agent_class(args.agent).weight_sources else None
+        probe = train_config(args, data_dir, run_dir, n_rotations, probe_clip, check_saved=False)
+        machine = machine_speed(probe, args, device)
+    clip = resolve_clip_weights(args)
+    config = train_config(args, data_dir, run_dir, n_rotations, clip)
 
     every = ", every instruction of each scene" if args.every_instruction else ""
     print(f"1/4 demonstrations: {args.demos} oracle episodes of {args.task}{every}")
@@ -204,17 +282,23 @@ def main() -> None:
     weights += ", centred sentence features" if args.center_sentences else ""
     print(
         f"2/4 training {args.agent} on {device} with the {args.recipe} recipe (width {args.width}, map scale "
-        f"{args.map_scale}, {n_rotations} place rotation(s), batch {args.batch_size}{weights}) for {args.steps} steps"
+        f"{args.map_scale}, {n_rotations} place rotation(s), batch {args.batch_size}{weights}) for "
+        + (f"{args.minutes:g} minutes (at most {args.steps} steps)" if args.minutes > 0 else f"{args.steps} steps")
     )
-    last = os.path.join(run_dir, "checkpoints", "last.pt")
+    run = RunDir(run_dir)
     mark = time.perf_counter()
-    if not os.path.exists(os.path.join(run_dir, "checkpoints", f"step-{args.steps:06d}.pt")):
-        train(config, resume=os.path.exists(os.path.join(run_dir, "config.json")))
+    check = held_out_check(args)
+    if args.minutes > 0 or not os.path.exists(run.checkpoint(args.steps)):
+        train(config, resume=run.is_run(), check=check)  # a finished run returns at once
     timings["training_s"] = time.perf_counter() - mark
+    trained = read_checkpoint(run.checkpoint("last"))["trainer"]
+    tested = run.best_step() if check is not None else None
+    which = f"the step-{tested} checkpoint, the best held-out check" if tested is not None else "the last checkpoint"
+    print(f"    trained {trained['step']} steps in {trained.get('trained_s', timings['training_s']) / 60:.1f} minutes")
 
-    print(f"3/4 evaluating on {args.episodes} test episodes")
+    print(f"3/4 evaluating {which} on {args.episodes} test episodes")
     mark = time.perf_counter()
-    agent = load_agent(last, device=device)
+    agent = load_agent(run.checkpoint(tested if tested is not None else "last"), device=device)
     result = evaluate(agent, args.task, "test", args.episodes, camera_scale=args.camera_scale)
     solved = [row for row in result["episodes"] if row["total_reward"] > 0.99]
     following = None
@@ -224,7 +308,7 @@ def main() -> None:
         print(f"    instruction following: {following['followed']} of {following['n']} swapped instructions")
     timings["evaluation_s"] = time.perf_counter() - mark
     with contextlib.closing(summary_writer(os.path.join(run_dir, "eval", "tensorboard"))) as tensorboard:
-        log_result(tensorboard, f"eval/{args.task}/test", result, args.steps)  # beside training's curves
+        log_result(tensorboard, f"eval/{args.task}/test", result, trained["step"])  # beside training's curves
 
     seed = solved[0]["seed"] if solved else result["episodes"][0]["seed"]
     print(f"4/4 heatmaps and a GIF of test episode {seed}" + ("" if solved else " (none was solved)"))
@@ -250,7 +334,12 @@ def main() -> None:
         "training": {
             "agent": args.agent,
             "recipe": args.recipe,
-            "steps": args.steps,
+            "steps": trained["step"],
+            "max_steps": args.steps,
+            "minutes": args.minutes,
+            "trained_s": trained.get("trained_s"),
+            "tested_step": tested if tested is not None else trained["step"],
+            "held_out": read_json(run.held_out) if check is not None else None,
             "width": args.width,
             "map_scale": args.map_scale,
             "lr": agent.config.lr,
@@ -269,6 +358,8 @@ def main() -> None:
         "video": rollout["video"],
         "seconds": {k: round(v, 1) for k, v in timings.items()},
     }
+    if machine is not None:
+        summary["machine"] = machine
     if following is not None:
         summary["instruction_following"] = {k: following[k] for k in ("rate", "n", "followed", "swaps")}
         summary["two_instructions"] = figure
@@ -287,6 +378,10 @@ def main() -> None:
         )
     if clip == "random":
         print("CLIP's weights were random here: the agent learned the colour words from the demonstrations alone.")
+    if args.aims and following is not None:
+        summary["aims"] = aims_verdict(args.aims, result, following, timings["total_s"])
+        write_json(os.path.join(args.out, "results.json"), summary)
+        print(summary["aims"]["line"])
 
 
 if __name__ == "__main__":

@@ -45,6 +45,8 @@ def test_bad_settings_are_one_line(tmp_path, one_error_line):
     one_error_line(out.returncode, out.stderr, "--steps must be at least 1, got 0", status=2)
     out = _run("--out", str(tmp_path), "--task", "nope")
     one_error_line(out.returncode, out.stderr, "unknown task 'nope'", status=2)
+    out = _run("--out", str(tmp_path), "--language", "--minutes", "-1")
+    one_error_line(out.returncode, out.stderr, "--minutes must be at least 0, got -1.0", status=2)
     assert not any(tmp_path.iterdir())
 
 
@@ -65,6 +67,26 @@ def test_the_language_lesson_measures_instruction_following_and_draws_two_instru
     assert Path(figure["path"]).is_file() and len(set(figure["instructions"])) == 2
     assert f"Instruction following: {following['followed']} of 2 swapped instructions" in out.stdout
     assert "random here" in out.stdout
+    # The first line: the probe's step time and what it means for the time budget.
+    first = out.stdout.splitlines()[0]
+    assert first.startswith("machine: ") and "a training step takes" in first and "10.5-minute training budget" in first
+    assert summary["machine"]["probe_step_s"] > 0
+    # 2 steps (the cap under the budget): checked at the last step on held-out validation scenes, that step tested.
+    training = summary["training"]
+    assert training["steps"] == 2 and training["tested_step"] == 2 and training["trained_s"] > 0
+    assert [row["step"] for row in training["held_out"]["curve"]] == [2]
+    assert training["held_out"]["check"]["samples"] == 24  # 4 validation scenes x 6 instructions
+    assert not summary["aims"]["met"] and "The lesson's aims" in out.stdout and "not met: solved" in out.stdout
+
+
+def test_the_aims_verdict_names_what_was_missed():
+    verdict = _quickstart_module().aims_verdict
+    aims = {"solved": 0.8, "followed": 0.9, "minutes": 15}
+    met = verdict(aims, {"success_rate": 0.85}, {"rate": 0.95}, 14 * 60)
+    assert met["met"] and met["line"].endswith("met.")
+    missed = verdict(aims, {"success_rate": 0.6}, {"rate": 0.95}, 16 * 60)
+    assert not missed["met"]
+    assert missed["line"].endswith("not met: solved 60 % (aim 80 %); 16.0 minutes (aim 15).")
 
 
 def _quickstart_module():
