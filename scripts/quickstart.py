@@ -33,12 +33,13 @@ from typing import Any
 import torch
 
 from cliport import tasks
-from cliport.agents import agent_class, agent_names, load_agent, read_checkpoint
+from cliport.agents import agent_class, agent_names, load_agent
 from cliport.cli.common import OneLineParser, run_cli
 from cliport.data.generate import DemoConfig, generate
 from cliport.errors import ConfigError, RunDirError
 from cliport.evaluation.evaluate import evaluate
 from cliport.evaluation.free_form import run_instruction
+from cliport.evaluation.held_out import HeldOutCheck, record_scenes
 from cliport.evaluation.instruction_following import instruction_following, scene_instruction, two_instructions_figure
 from cliport.train.config import TrainConfig
 from cliport.train.probe import step_seconds
@@ -227,12 +228,8 @@ def machine_speed(config: TrainConfig, args: Any, device: str) -> dict[str, Any]
     return {"device": where, "probe_step_s": round(seconds, 3), "expected_steps": steps}
 
 
-def held_out_check(args: Any) -> Any:
-    """The lesson's checks on held-out validation scenes while it trains, or None."""
-    if args.check_every < 1 or args.check_scenes < 1:
-        return None
-    from cliport.evaluation.held_out import HeldOutCheck, record_scenes
-
+def held_out_check(args: Any) -> HeldOutCheck:
+    """The lesson's checks on held-out validation scenes while it trains (``--check-every``, ``--check-scenes``)."""
     scenes = record_scenes(args.task, args.check_scenes, args.camera_scale)
     return HeldOutCheck(scenes, args.check_every, start=args.check_every)
 
@@ -287,14 +284,16 @@ def main() -> None:
     )
     run = RunDir(run_dir)
     mark = time.perf_counter()
-    check = held_out_check(args)
+    checked = args.check_every > 0 and args.check_scenes > 0
+    trained: dict[str, Any] = {"step": args.steps, "trained_s": None}  # an earlier run trained every step
     if args.minutes > 0 or not os.path.exists(run.checkpoint(args.steps)):
-        train(config, resume=run.is_run(), check=check)  # a finished run returns at once
+        check = held_out_check(args) if checked else None
+        done = train(config, resume=run.is_run(), check=check)  # a finished run returns at once
+        trained = {"step": done["steps"], "trained_s": done["trained_s"]}
     timings["training_s"] = time.perf_counter() - mark
-    trained = read_checkpoint(run.checkpoint("last"))["trainer"]
-    tested = run.best_step() if check is not None else None
+    tested = run.best_step() if checked else None
     which = f"the step-{tested} checkpoint, the best held-out check" if tested is not None else "the last checkpoint"
-    print(f"    trained {trained['step']} steps in {trained.get('trained_s', timings['training_s']) / 60:.1f} minutes")
+    print(f"    trained {trained['step']} steps in {(trained['trained_s'] or timings['training_s']) / 60:.1f} minutes")
 
     print(f"3/4 evaluating {which} on {args.episodes} test episodes")
     mark = time.perf_counter()
@@ -337,9 +336,9 @@ def main() -> None:
             "steps": trained["step"],
             "max_steps": args.steps,
             "minutes": args.minutes,
-            "trained_s": trained.get("trained_s"),
+            "trained_s": trained["trained_s"],
             "tested_step": tested if tested is not None else trained["step"],
-            "held_out": read_json(run.held_out) if check is not None else None,
+            "held_out": read_json(run.held_out) if os.path.exists(run.held_out) else None,
             "width": args.width,
             "map_scale": args.map_scale,
             "lr": agent.config.lr,
