@@ -13,7 +13,8 @@ from cliport.agents import make_agent
 from cliport.env.heightmap import heightmap_shape
 from cliport.train.config import TrainConfig
 from cliport.train.graphed_step import TrainStep
-from cliport.utils.device import bf16_native, resolve_device
+from cliport.train.trainer import autocast_dtype
+from cliport.utils.device import resolve_device
 
 #: Two instructions, so that an agent centring its sentence features has a mean to centre on.
 PROBE_INSTRUCTIONS = ("put the red block in the green bowl", "put the blue block in the brown bowl")
@@ -34,12 +35,11 @@ def step_seconds(config: TrainConfig, steps: int = 4, warmup: int = 2) -> float:
         optimizer, _ = recipe.prepare(agent)
         if agent.centers_sentences:
             agent.fit_sentence_centering(list(PROBE_INSTRUCTIONS))
-        use_amp = config.amp == "bf16" or (config.amp == "auto" and bf16_native(device))
         train_step = TrainStep(
             agent,
             optimizer,
             recipe.loss,
-            autocast_dtype=torch.bfloat16 if use_amp else None,
+            autocast_dtype=autocast_dtype(config, device),
             graphs=False,
             parallel_heads=config.parallel_heads,
         )

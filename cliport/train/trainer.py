@@ -245,14 +245,13 @@ def train(
         # DDP steps eagerly: its gradient all-reduce would need its own warm-up and stream set-up to be captured.
         ddp_ids = [local_rank] if device.type == "cuda" else None
         model = nn.parallel.DistributedDataParallel(_LossModule(agent, recipe.loss), device_ids=ddp_ids)
-    use_amp = config.amp == "bf16" or (config.amp == "auto" and bf16_native(device))
     sums = LossSums(device)
     watch = DeadMapWatch(device=device, start_step=step)
     train_step = TrainStep(
         agent,
         optimizer,
         recipe.loss,
-        autocast_dtype=torch.bfloat16 if use_amp else None,
+        autocast_dtype=autocast_dtype(config, device),
         observers=(sums.add, watch.observe),
         graphs=config.train_graphs and world == 1,
         compile=config.compile and world == 1,
@@ -395,6 +394,13 @@ def train(
         dist.barrier()
     summary["rank"] = rank
     return summary
+
+
+def autocast_dtype(config: TrainConfig, device: torch.device) -> torch.dtype | None:
+    """The dtype a training step of ``config`` autocasts to on ``device`` (``amp``: bf16 where asked, or where
+    ``auto`` finds native bf16), or None for full precision."""
+    use_amp = config.amp == "bf16" or (config.amp == "auto" and bf16_native(device))
+    return torch.bfloat16 if use_amp else None
 
 
 def _check_line(row: dict[str, Any], best: bool) -> str:
