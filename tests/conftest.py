@@ -221,6 +221,36 @@ def make_variant_dataset():
     return _variant_dataset
 
 
+def _two_bowl_dataset(root: str) -> None:
+    """One put-one-block-in-bowl-seen-colors step under four instructions: the gray block (at x 0.3) or the blue
+    one (x 0.45) into the red bowl at (0.3, 0.2) or the blue bowl at (0.6, -0.2). The oracle picks a random point
+    of a block, so the gray block's two picks are 2.2 cm apart."""
+    from cliport.data.episode_io import dataset_dir, episode_path, save_episode
+
+    folder = dataset_dir(root, "put-one-block-in-bowl-seen-colors", "train")
+    os.makedirs(folder)
+    rng = np.random.default_rng(0)
+    obs = {"color": rng.integers(0, 255, (320, 160, 3), np.uint8), "height": np.zeros((320, 160), np.float32)}
+
+    def action(pick: tuple[float, float], place: tuple[float, float]) -> dict:
+        return {"pose0": ((*pick, 0.02), (0, 0, 0, 1)), "pose1": ((*place, 0.02), (0, 0, 0, 1))}
+
+    variants = [
+        ("put the gray block in the blue bowl", action((0.32, 0.01), (0.6, -0.2))),
+        ("put the blue block in the red bowl", action((0.45, 0.0), (0.3, 0.2))),
+        ("put the blue block in the blue bowl", action((0.45, 0.0), (0.6, -0.2))),
+    ]
+    step = {"obs": obs, "action": action((0.3, 0.0), (0.3, 0.2)), "reward": 1.0}
+    step["lang_goal"] = "put the gray block in the red bowl"
+    save_episode(episode_path(folder, 0), [{**step, "variants": variants}], {"task": "x", "seed": 0})
+
+
+@pytest.fixture(scope="session")
+def make_two_bowl_dataset():
+    """A function (root) writing :func:`_two_bowl_dataset`'s episode."""
+    return _two_bowl_dataset
+
+
 #: Kinds of broken weight files every weights loader must turn into one line, and a phrase of that line.
 BAD_WEIGHT_FILES = {
     "random-bytes": "not a PyTorch state-dict file",

@@ -12,13 +12,26 @@ import torch
 from torch.utils.data import Dataset
 
 from cliport.data import augment as augment_ops
-from cliport.data.episode_io import EpisodeData, dataset_dir, episode_path, existing_seeds, load_episode, read_meta
+from cliport.data.episode_io import (
+    EpisodeData,
+    dataset_dir,
+    episode_path,
+    existing_seeds,
+    load_episode,
+    read_meta,
+    read_poses,
+)
 from cliport.env import heightmap as hm
 from cliport.errors import UnknownNameError, UserError
 
 
 class DatasetError(UserError, ValueError):
     """The requested data is missing or unusable; the message names the path."""
+
+
+#: Two oracle poses closer than this (metres, in x and y) are on the same object: a block is 4 cm wide (5.7 cm
+#: corner to corner), a bowl 12 cm.
+SAME_OBJECT_M = 0.05
 
 
 class DemoDataset(Dataset):
@@ -146,17 +159,51 @@ class DemoDataset(Dataset):
             self._rng = np.random.default_rng(torch.initial_seed() % 2**63)
         return self._rng
 
-    def __getitem__(self, i: int) -> dict[str, Any]:
+    def contrasting(self) -> list[list[int]]:
+        """Per sample, the other samples of its scene whose instruction asks for another pick and another place
+        (another block into the other bowl): picks and places more than :data:`SAME_OBJECT_M` apart in x, y (an
+        oracle picks a random point of the object). The pairs :class:`~cliport.train.loader.ContrastPairSampler`
+        draws; empty lists without ``every_instruction``."""
+        poses = [read_poses(path) for _, path in self.files]
+        scenes: dict[tuple[int, int], list[int]] = {}
+        for j, (e, t, _) in enumerate(self.index):
+            scenes.setdefault((e, t), []).append(j)
+        partners: list[list[int]] = []
+        for e, t, k in self.index:
+            pick, place = poses[e][0][t], poses[e][1][t]
+            partners.append([
+                j
+                for j in scenes[e, t]
+                if np.linalg.norm(pick[(k2 := self.index[j][2]), :2] - pick[k, :2]) > SAME_OBJECT_M
+                and np.linalg.norm(place[k2, :2] - place[k, :2]) > SAME_OBJECT_M
+            ])  # fmt: skip
+        return partners
+
+    def __getitem__(self, item: int | tuple[int, int]) -> dict[str, Any]:
+        """Sample ``item``: an index, augmented from the dataset's generator, or (index, seed), augmented from a
+        generator of that seed (a pair of samples with one seed gets the same transform)."""
+        if isinstance(item, tuple):
+            i, seed = item
+            return self.sample(i, self.augment, np.random.default_rng(seed))
+        return self.sample(item, self.augment)
+
+    def sample(self, i: int, augment: bool, rng: np.random.Generator | None = None) -> dict[str, Any]:
+        """Sample ``i``, with the random SE(2) augmentation or as recorded (``augment`` False draws nothing). The
+        transform is drawn from the dataset's generator and keeps the sample's pick and place in view; with
+        ``rng``, from ``rng`` keeping the targets of every instruction of the scene in view, so that the samples
+        of one scene get the same transform from generators of one seed."""
         e, t, k = self.index[i]
         ep = self.episode(e)
         color, height = ep.color[t], ep.height[t]
         lang, pose0, pose1 = ep.instruction(t, k)
         pose0, pose1 = pose0.copy(), pose1.copy()
-        if self.augment:
-            pick, place = hm.xyz_to_pix(pose0[:3]), hm.xyz_to_pix(pose1[:3])
-            m = augment_ops.sample_se2(
-                self._generator(), height.shape, [pick, place], angle_std=self.rotation_std, pivot=self.aug_pivot
-            )
+        if augment:
+            if rng is None:
+                rng, kept = self._generator(), [(pose0, pose1)]
+            else:
+                kept = [ep.instruction(t, j)[1:] for j in range(1 + len(ep.variant_lang[t] if ep.variant_lang else []))]
+            points = [hm.xyz_to_pix(pose[:3]) for pair in kept for pose in pair]
+            m = augment_ops.sample_se2(rng, height.shape, points, angle_std=self.rotation_std, pivot=self.aug_pivot)
             color, height = augment_ops.warp_observation(color, height, m, self.aug_interpolation)
             pose0, pose1 = augment_ops.transform_pose(m, pose0), augment_ops.transform_pose(m, pose1)
         return {

@@ -199,6 +199,19 @@ def read_instructions(path: str) -> list[list[str]]:
     return [[lang, *(str(s) for s in row)] for lang, row in zip(recorded, variants, strict=True)]
 
 
+def read_poses(path: str) -> tuple[np.ndarray, np.ndarray]:
+    """Per step, the pick and place poses of the recorded instruction followed by those of the variants the file
+    records: two (T, 1 + K, 7) arrays; cheap: the images are not decompressed."""
+    with _open(path) as z:
+        poses = [_read(z, key, path)[:, None] for key in ("pose0", "pose1")]
+        if "variant_pose0" in z.files:
+            variants = [_read(z, f"variant_{key}", path) for key in ("pose0", "pose1")]
+            if any(len(v) != len(poses[0]) for v in variants):
+                raise EpisodeFileError(f"corrupt episode file {path}: variant arrays have different lengths")
+            poses = [np.concatenate([p, v], axis=1) for p, v in zip(poses, variants, strict=True)]
+    return poses[0], poses[1]
+
+
 def read_meta(path: str) -> dict[str, Any]:
     """The ``meta`` record of an episode file alone (cheap: the images are not decompressed)."""
     with _open(path) as z:

@@ -135,3 +135,27 @@ def test_every_instruction_needs_demos_that_record_them(tmp_path, make_synthetic
     folder = make_synthetic_dataset(str(tmp_path), n_episodes=1)
     with pytest.raises(DatasetError, match=f"{folder}.*cliport-demos --every-instruction"):
         DemoDataset(str(tmp_path), "place-red-in-green", every_instruction=True)
+
+
+def test_contrasting_instructions_name_another_pick_and_another_place_and_share_an_augmentation(
+    tmp_path, make_two_bowl_dataset
+):
+    make_two_bowl_dataset(str(tmp_path))
+    ds = DemoDataset(str(tmp_path), "put-one-block-in-bowl-seen-colors", every_instruction=True)
+    lang = [ds.sample(i, augment=False)["lang"] for i in range(len(ds))]
+    pairs = {lang[i]: [lang[j] for j in partners] for i, partners in enumerate(ds.contrasting())}
+    assert pairs == {
+        "put the gray block in the red bowl": ["put the blue block in the blue bowl"],
+        "put the gray block in the blue bowl": ["put the blue block in the red bowl"],
+        "put the blue block in the red bowl": ["put the gray block in the blue bowl"],
+        "put the blue block in the blue bowl": ["put the gray block in the red bowl"],
+    }
+    first, second = lang.index("put the gray block in the red bowl"), lang.index("put the blue block in the blue bowl")
+    a, b, other = ds[(first, 7)], ds[(second, 7)], ds[(second, 8)]
+    assert np.array_equal(a["color"], b["color"]) and np.array_equal(a["height"], b["height"])
+    assert not np.array_equal(b["color"], other["color"]), "another seed, another transform"
+    # One rigid transform moved both: the targets are as far apart as recorded.
+    assert np.linalg.norm(a["pose0"][:2] - b["pose0"][:2]) == pytest.approx(0.15, abs=1e-3)
+    assert np.linalg.norm(a["pose1"][:2] - b["pose1"][:2]) == pytest.approx(np.hypot(0.3, 0.4), abs=1e-3)
+    one = DemoDataset(str(tmp_path), "put-one-block-in-bowl-seen-colors")
+    assert one.contrasting() == [[]], "without every_instruction a scene has one instruction"
