@@ -289,7 +289,7 @@ def main() -> None:
     if args.minutes > 0 or not os.path.exists(run.checkpoint(args.steps)):
         check = held_out_check(args) if checked else None
         done = train(config, resume=run.is_run(), check=check)  # a finished run returns at once
-        trained = {"step": done["steps"], "trained_s": done["trained_s"]}
+        trained = {"step": done["steps"], "trained_s": done["trained_s"], "init_draws": done["init_draws"]}
     timings["training_s"] = time.perf_counter() - mark
     tested = run.best_step() if checked else None
     which = f"the step-{tested} checkpoint, the best held-out check" if tested is not None else "the last checkpoint"
@@ -345,6 +345,7 @@ def main() -> None:
             "n_rotations": n_rotations,
             "batch_size": args.batch_size,
             "seed": args.seed,
+            "init_draws": trained.get("init_draws"),
             "clip_weights": clip,
             "every_instruction": args.every_instruction,
             "center_sentences": args.center_sentences,

@@ -37,7 +37,8 @@ from cliport.train.checks import AgentCheck, CheckCurve
 from cliport.train.config import TrainConfig
 from cliport.train.dead_maps import DeadMapWatch
 from cliport.train.graphed_step import TrainStep
-from cliport.train.loader import training_loader
+from cliport.train.live_start import ensure_live
+from cliport.train.loader import TrainingCollate, training_loader
 from cliport.train.loss_sums import LossSums
 from cliport.train.resume import load_optimizer_state
 from cliport.utils.device import bf16_native, resolve_device
@@ -223,6 +224,7 @@ def train(
     if check is not None and world > 1:
         raise TrainError("checks of the training agent run in a single process, not under DDP")
     step = 0
+    init_draws: dict[str, dict[str, Any]] = {}  # nets drawn again at the start (live_start); in every checkpoint
     trained_before = 0.0  # seconds of training loop in earlier attempts of this run
     if resume and os.path.exists(last_path):
         payload = read_checkpoint(last_path)
@@ -236,6 +238,17 @@ def train(
         step = int(payload["trainer"]["step"])
         trained_before = float(payload["trainer"].get("trained_s", 0.0))
         torch.set_rng_state(payload["trainer"]["torch_rng"])
+        init_draws = payload.get("init_draws", {})
+    if step == 0:
+        agent.train()
+        first = TrainingCollate(agent.config.n_rotations)([dataset.sample(0, augment=False)])
+        init_draws = ensure_live(agent, agent.training_inputs(first, device), seed=config.seed * 1000 + rank)
+        for name, record in init_draws.items() if rank == 0 else ():
+            print(
+                f"note: the {name} net's first initial weights could not learn ({record['reason']}); it "
+                f"starts from draw {record['draws']} (cliport/train/live_start.py)",
+                file=sys.stderr,
+            )
     if rank == 0:
         os.makedirs(run.root, exist_ok=True)
         write_json(run.config, config.to_dict())
@@ -280,7 +293,7 @@ def train(
     def save(kind: int | str) -> None:
         if rank != 0:
             return
-        payload = {**agent.checkpoint_payload(), "recipe": config.recipe}
+        payload = {**agent.checkpoint_payload(), "recipe": config.recipe, "init_draws": init_draws}
         if kind == "last":
             payload["trainer"] = {
                 "step": step,
@@ -381,6 +394,7 @@ def train(
             tensorboard.close()
     summary: dict[str, Any] = {"run_dir": run.root, "steps": step, "checkpoints": run.checkpoint_steps()}
     summary["trained_s"] = round(trained_s(), 1)
+    summary["init_draws"] = init_draws
     summary["stopped_by"] = "time_budget" if step < config.n_steps else "n_steps"
     if curve is not None and curve.best is not None:
         summary["held_out"] = {"best_step": curve.best["step"], "best_score": curve.best["score"]}

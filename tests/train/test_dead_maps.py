@@ -73,7 +73,8 @@ def test_training_stops_when_the_place_map_goes_constant(
     def dead_key(*args, **kwargs):
         agent = real_make_agent(*args, **kwargs)
         forward = agent.place.key_net.forward
-        agent.place.key_net.forward = lambda *a, **k: forward(*a, **k) * 0.0
+        # Dead from the first training step on: the start check (live_start, without gradients) sees a live net.
+        agent.place.key_net.forward = lambda *a, **k: forward(*a, **k) * float(not torch.is_grad_enabled())
         return agent
 
     monkeypatch.setattr(agents, "make_agent", dead_key)
