@@ -124,6 +124,13 @@ def parse_args(device: str) -> Any:
         help="record every instruction of each demo scene with the oracle's action for it, and train on all of them",
     )
     parser.add_argument(
+        "--pair-contrasts",
+        action=argparse.BooleanOptionalAction,
+        default=defaults.get("pair_contrasts", False),
+        help="follow each training sample by its scene under an instruction naming another block and another "
+        "bowl (with --every-instruction)",
+    )
+    parser.add_argument(
         "--center-sentences",
         action=argparse.BooleanOptionalAction,
         default=defaults.get("center_sentences", False),
@@ -194,6 +201,7 @@ def train_config(
             "time_budget_s": args.minutes * 60,
             "num_workers": 1,
             "every_instruction": args.every_instruction,
+            "pair_contrasts": args.pair_contrasts,
             "agent_config": agent_config,
             "env": {"camera_scale": args.camera_scale},
         }
@@ -277,6 +285,7 @@ def main() -> None:
 
     weights = f", CLIP weights {clip}" if clip is not None else ""
     weights += ", centred sentence features" if args.center_sentences else ""
+    weights += ", contrasting pairs" if args.pair_contrasts else ""
     print(
         f"2/4 training {args.agent} on {device} with the {args.recipe} recipe (width {args.width}, map scale "
         f"{args.map_scale}, {n_rotations} place rotation(s), batch {args.batch_size}{weights}) for "
@@ -348,6 +357,7 @@ def main() -> None:
             "init_draws": trained.get("init_draws"),
             "clip_weights": clip,
             "every_instruction": args.every_instruction,
+            "pair_contrasts": args.pair_contrasts,
             "center_sentences": args.center_sentences,
             "run_dir": run_dir,
         },

@@ -52,6 +52,9 @@ class TrainConfig:
         every_instruction: train on every instruction the demos record for each step (``cliport-demos
             --every-instruction``), each with the oracle's action for it, not only the one each scene was built
             with: the same image under other sentences and other answers. Not the reference's.
+        pair_contrasts: each training sample is followed by the same scene, with the same augmentation, under an
+            instruction that names another pick and another place (with ``every_instruction``; the two are
+            consecutive steps at batch 1, :class:`~cliport.train.loader.ContrastPairSampler`). Not the reference's.
         train_graphs: on CUDA, replay each training step as one CUDA graph at the run's batch shape (forward,
             loss, backward, fused Adam; :mod:`cliport.train.graphed_step`); a step of another shape, a CPU and
             DDP train eagerly. Off: every step eagerly.
@@ -94,6 +97,7 @@ class TrainConfig:
     # Runs saved before recipes existed trained with what configs/recipes.toml calls legacy.
     recipe: str = "legacy"
     every_instruction: bool = False
+    pair_contrasts: bool = False
     # Defaults only so that config.json files of runs saved before these settings existed load.
     train_graphs: bool = True
     compile: bool = False
@@ -158,6 +162,8 @@ class TrainConfig:
             raise ConfigError(f"val_mode must be auto, after or beside, got {self.val_mode!r}")
         if self.amp not in ("auto", "bf16", "none"):
             raise ConfigError(f"amp must be auto, bf16 or none, got {self.amp!r}")
+        if self.pair_contrasts and not self.every_instruction:
+            raise ConfigError("pair_contrasts pairs the instructions of a scene: it needs every_instruction")
         if self.env.camera_scale <= 0:
             raise ConfigError(f"camera_scale must be > 0, got {self.env.camera_scale}")
         if self.env.renderer not in ("auto", "egl", "cpu"):

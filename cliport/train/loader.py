@@ -12,11 +12,12 @@ on two threads); :class:`TrainingCollate` stacks with numpy (0.04 ms).
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
 import torch
-from torch.utils.data import DataLoader, Dataset, RandomSampler, default_collate
+from torch.utils.data import DataLoader, Dataset, RandomSampler, Sampler, default_collate
 
 from cliport.agents.decode import action_targets
 
@@ -48,6 +49,35 @@ class TrainingCollate:
         return batch
 
 
+class ContrastPairSampler(Sampler[tuple[int, int]]):
+    """Samples drawn with replacement, each followed at once by a contrasting one: its scene under an
+    instruction that names another pick and another place
+    (:meth:`~cliport.data.dataset.DemoDataset.contrasting`), the two with one augmentation seed: items
+    ``(index, seed)``. A sample without a contrast comes alone.
+
+    At batch 1 the pair is two consecutive steps on the same augmented image whose targets differ only by the
+    words: what a net can learn from the image alone (a block, a bowl) pulls one way and then the other, and
+    what it must read from the sentence pulls the same way twice."""
+
+    def __init__(self, partners: list[list[int]], generator: torch.Generator, num_samples: int = 10**9) -> None:
+        self.partners, self.generator, self.num_samples = partners, generator, num_samples
+
+    def __len__(self) -> int:
+        return self.num_samples
+
+    def __iter__(self) -> Iterator[tuple[int, int]]:
+        n, yielded = len(self.partners), 0
+        while yielded < self.num_samples:
+            i, seed = (int(v) for v in torch.randint(2**62, (2,), generator=self.generator))
+            i %= n
+            yield i, seed
+            yielded += 1
+            if self.partners[i] and yielded < self.num_samples:
+                pick = int(torch.randint(len(self.partners[i]), (1,), generator=self.generator))
+                yield self.partners[i][pick], seed
+                yielded += 1
+
+
 def training_loader(
     dataset: Dataset,
     batch_size: int,
@@ -56,13 +86,19 @@ def training_loader(
     seed: int,
     pin_memory: bool,
     prefetch_factor: int = 4,
+    pair_contrasts: bool = False,
 ) -> DataLoader:
     """An endless loader of augmented training batches of ``dataset``: samples drawn with replacement by a
-    generator seeded with ``seed``, ``num_workers`` processes (persistent, each keeping ``prefetch_factor``
-    batches ready), the targets collated in them (:class:`TrainingCollate`) and, with ``pin_memory``, every
-    tensor pinned for asynchronous copies to a GPU."""
+    generator seeded with ``seed`` (``pair_contrasts``: each followed by a contrasting one,
+    :class:`ContrastPairSampler`; the dataset must have ``contrasting``), ``num_workers`` processes
+    (persistent, each keeping ``prefetch_factor`` batches ready), the targets collated in them
+    (:class:`TrainingCollate`) and, with ``pin_memory``, every tensor pinned for asynchronous copies to a GPU."""
     generator = torch.Generator().manual_seed(seed)
-    sampler = RandomSampler(dataset, replacement=True, num_samples=10**9, generator=generator)  # type: ignore[arg-type]  # a map-style dataset: it has __len__, which torch's Dataset type does not declare
+    sampler: Sampler
+    if pair_contrasts:
+        sampler = ContrastPairSampler(dataset.contrasting(), generator)  # type: ignore[attr-defined]  # a DemoDataset
+    else:
+        sampler = RandomSampler(dataset, replacement=True, num_samples=10**9, generator=generator)  # type: ignore[arg-type]  # a map-style dataset: it has __len__, which torch's Dataset type does not declare
     return DataLoader(
         dataset,
         batch_size=batch_size,

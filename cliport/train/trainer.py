@@ -278,6 +278,7 @@ def train(
         config.num_workers,
         seed=config.seed * 7919 + rank + step,
         pin_memory=device.type == "cuda",
+        pair_contrasts=config.pair_contrasts,
     )
     schedule = set(checkpoint_schedule(config))
     fields = ["step", "loss", "pick_loss", "place_loss", "steps_per_second", "samples_per_second", "elapsed_s"]

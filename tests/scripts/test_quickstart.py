@@ -60,7 +60,9 @@ def test_the_language_lesson_measures_instruction_following_and_draws_two_instru
     assert summary["agent"] == "two_stream" and summary["task"] == "put-one-block-in-bowl-seen-colors"
     assert summary["training"]["clip_weights"] == "random" and summary["training"]["map_scale"] == 0.5
     assert summary["training"]["every_instruction"] and summary["training"]["center_sentences"]
+    assert summary["training"]["pair_contrasts"] and isinstance(summary["training"]["init_draws"], dict)
     assert "every instruction of each scene" in out.stdout and "centred sentence features" in out.stdout
+    assert "contrasting pairs" in out.stdout
     following = summary["instruction_following"]
     assert following["n"] == 2 and following["rate"] == following["followed"] / 2  # two other blocks per scene
     figure = summary["two_instructions"]

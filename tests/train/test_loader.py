@@ -12,7 +12,7 @@ from torch.utils.data import Dataset, default_collate
 
 from cliport.agents import make_agent
 from cliport.data.dataset import DemoDataset
-from cliport.train.loader import TrainingCollate, training_loader
+from cliport.train.loader import ContrastPairSampler, TrainingCollate, training_loader
 
 
 def test_the_collated_targets_are_the_agents(tmp_path, make_synthetic_dataset, tiny_config) -> None:
@@ -78,3 +78,33 @@ def test_batches_are_ready_before_the_training_step_asks(workers: int, tmp_path,
         del batches, loader
     assert ready[0] == 0.0
     assert ready[workers] >= 0.9, ready
+
+
+def test_contrast_pairs_come_one_after_the_other_with_one_seed() -> None:
+    partners = [[1, 2], [0], []]
+    items = list(ContrastPairSampler(partners, torch.Generator().manual_seed(3), num_samples=60))
+    assert len(items) == 60
+    assert items == list(ContrastPairSampler(partners, torch.Generator().manual_seed(3), num_samples=60))
+    k, firsts = 0, []
+    while k < len(items):
+        (i, seed), k = items[k], k + 1
+        firsts.append(i)
+        if partners[i] and k < len(items):
+            partner, partner_seed = items[k]
+            assert partner in partners[i] and partner_seed == seed
+            k += 1
+    assert set(firsts) == {0, 1, 2}, "every sample is drawn"
+    assert len({seed for _, seed in items}) > 20, "each pair its own seed"
+
+
+def test_the_loader_pairs_contrasting_instructions_at_batch_1(tmp_path, make_two_bowl_dataset) -> None:
+    make_two_bowl_dataset(str(tmp_path))
+    dataset = DemoDataset(str(tmp_path), "put-one-block-in-bowl-seen-colors", every_instruction=True)
+    batches = iter(training_loader(dataset, 1, 1, num_workers=0, seed=0, pin_memory=False, pair_contrasts=True))
+    for _ in range(4):
+        first, second = next(batches), next(batches)
+        assert torch.equal(first["color"], second["color"])
+        one, two = (batch["lang"][0].split() for batch in (first, second))  # put the X block in the Y bowl
+        assert one[2] != two[2] and one[6] != two[6], "another block colour and another bowl colour"
+        assert not torch.equal(first["pick_pix"], second["pick_pix"])
+        assert not torch.equal(first["place_pix"], second["place_pix"])

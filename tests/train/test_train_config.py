@@ -27,6 +27,7 @@ def test_build_nests_the_agent_and_env_defaults():
         ({"amp": "fp8"}, ConfigError, "amp must be auto, bf16 or none"),
         ({"env": {"camera_scale": -1.0}}, ConfigError, "camera_scale must be > 0"),
         ({"agent_config": {"width": -1}}, ConfigError, "width must be > 0"),
+        ({"pair_contrasts": True}, ConfigError, "pair_contrasts pairs the instructions of a scene: it needs every"),
     ],
 )  # fmt: skip
 def test_bad_settings_are_named(overrides, error, message):
