@@ -126,9 +126,9 @@ def parse_args(device: str) -> Any:
     parser.add_argument(
         "--pair-contrasts",
         action=argparse.BooleanOptionalAction,
-        default=defaults.get("pair_contrasts", False),
+        default=None,
         help="follow each training sample by its scene under an instruction naming another block and another "
-        "bowl (with --every-instruction)",
+        "bowl (needs --every-instruction; default: on where it is)",
     )
     parser.add_argument(
         "--center-sentences",
@@ -150,6 +150,8 @@ def parse_args(device: str) -> Any:
         if getattr(args, name) < 0:
             raise ConfigError(f"--{name.replace('_', '-')} must be at least 0, got {getattr(args, name)}")
     args.aims = defaults.get("aims")
+    if args.pair_contrasts is None:  # on by default where there are a scene's instructions to pair
+        args.pair_contrasts = bool(defaults.get("pair_contrasts", False)) and args.every_instruction
     tasks.resolve(args.task)
     if args.center_sentences and not agent_class(args.agent).uses_language:
         print(f"note: {args.agent} reads no instruction, so there are no sentence features to centre", file=sys.stderr)

@@ -113,3 +113,13 @@ def test_auto_clip_weights_are_the_published_ones_where_they_can_be_had(availabl
     assert ("RANDOM CLIP weights" in capsys.readouterr().err) == (not available)
     assert quickstart.resolve_clip_weights(argparse.Namespace(agent="two_stream", clip_weights="/w.pt")) == "/w.pt"
     assert quickstart.resolve_clip_weights(argparse.Namespace(agent="transporter_only", clip_weights="auto")) is None
+
+
+@pytest.mark.parametrize(
+    "flags, pairs",
+    [([], True), (["--no-pair-contrasts"], False), (["--no-every-instruction"], False)],
+)
+def test_the_lesson_pairs_contrasts_where_it_has_every_instruction(flags, pairs, monkeypatch):
+    monkeypatch.setattr(sys, "argv", ["quickstart.py", "--language", *flags])
+    args = _quickstart_module().parse_args("cpu")
+    assert args.pair_contrasts is pairs
