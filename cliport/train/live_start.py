@@ -15,12 +15,13 @@ summary records it.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import torch
 from torch import nn
 
-from cliport.agents.base import PickPlaceAgent
+from cliport.agents.base import PickPlaceAgent, TrainingInputs
 from cliport.errors import UserError
 from cliport.models.fusion import ConvFusion
 from cliport.models.preprocess import raw_input
@@ -37,7 +38,7 @@ class DeadStartError(UserError, RuntimeError):
     """Every draw tried left a net unable to learn (:func:`dead_nets`)."""
 
 
-def dead_nets(agent: PickPlaceAgent, inputs: dict[str, Any]) -> dict[str, str]:
+def dead_nets(agent: PickPlaceAgent, inputs: TrainingInputs) -> dict[str, str]:
     """The nets ("pick", "place") that cannot learn from where they start, each with the reason: an output map on
     ``inputs`` (:meth:`PickPlaceAgent.training_inputs` of one batch) that is the same at every pixel and rotation,
     or a stream whose every channel a stream fusion's ReLU zeroes at every pixel (that stream gets no gradient).
@@ -81,17 +82,19 @@ def redraw(net: nn.Module, seed: int) -> None:
     layers = [
         m for m in net.modules() if (own := list(m.parameters(recurse=False))) and all(p.requires_grad for p in own)
     ]
-    missing = [m for m in layers if not hasattr(m, "reset_parameters")]
-    if missing:
-        raise TypeError(f"cannot re-initialise {type(missing[0]).__name__}: it has no reset_parameters()")
+    resets: list[Callable[[], None]] = []
+    for layer in layers:
+        if not callable(reset := getattr(layer, "reset_parameters", None)):
+            raise TypeError(f"cannot re-initialise {type(layer).__name__}: it has no reset_parameters()")
+        resets.append(reset)
     devices = sorted({p.device.index or 0 for p in net.parameters() if p.device.type == "cuda"})
     with torch.random.fork_rng(devices=devices):
         torch.manual_seed(seed)
-        for layer in layers:
-            layer.reset_parameters()
+        for reset in resets:
+            reset()
 
 
-def ensure_live(agent: PickPlaceAgent, inputs: dict[str, Any], seed: int) -> dict[str, dict[str, Any]]:
+def ensure_live(agent: PickPlaceAgent, inputs: TrainingInputs, seed: int) -> dict[str, dict[str, Any]]:
     """Draw each net :func:`dead_nets` finds on ``inputs`` again (:func:`redraw`, draw ``k`` from
     ``seed + (k - 1) * DRAW_SEED_STRIDE``) until none is found; returns, per redrawn net, the draw it ended at
     and why the first was dead ({} when every first draw was live). Raises :class:`DeadStartError` after
