@@ -296,7 +296,8 @@ def main() -> None:
     run = RunDir(run_dir)
     mark = time.perf_counter()
     checked = args.check_every > 0 and args.check_scenes > 0
-    trained: dict[str, Any] = {"step": args.steps, "trained_s": None}  # an earlier run trained every step
+    # An earlier run trained every step: its time and start draws are not read back from the checkpoints.
+    trained: dict[str, Any] = {"step": args.steps, "trained_s": None, "init_draws": None}
     if args.minutes > 0 or not os.path.exists(run.checkpoint(args.steps)):
         check = held_out_check(args) if checked else None
         done = train(config, resume=run.is_run(), check=check)  # a finished run returns at once
@@ -356,7 +357,7 @@ def main() -> None:
             "n_rotations": n_rotations,
             "batch_size": args.batch_size,
             "seed": args.seed,
-            "init_draws": trained.get("init_draws"),
+            "init_draws": trained["init_draws"],
             "clip_weights": clip,
             "every_instruction": args.every_instruction,
             "pair_contrasts": args.pair_contrasts,
