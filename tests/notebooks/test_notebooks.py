@@ -5,12 +5,33 @@ defaults (slow)."""
 import glob
 import json
 import os
+import tempfile
 
 import matplotlib
 import pytest
 import torch
 
 pytestmark = [pytest.mark.e2e]
+
+
+# The work folders the notebooks make with tempfile.mkdtemp(prefix=...): a user keeps them (hundreds of MB each).
+NOTEBOOK_FOLDERS = ("cliport-quickstart-", "cliport-language-", "cliport-affordances-", "cliport-study-",
+                    "cliport-explorer-")  # fmt: skip
+
+
+@pytest.fixture(autouse=True)
+def notebook_folders_in_tmp_path(monkeypatch, tmp_path):
+    """The notebooks' work folders go under ``tmp_path``, so that a passing test leaves nothing on the disk; every
+    other temporary folder stays where it was (multiprocessing's sockets need a short path)."""
+    mkdtemp = tempfile.mkdtemp
+
+    def in_tmp_path(suffix=None, prefix=None, dir=None):
+        if dir is None and prefix is not None and prefix.startswith(NOTEBOOK_FOLDERS):
+            dir = str(tmp_path)
+        return mkdtemp(suffix, prefix, dir)
+
+    monkeypatch.setattr(tempfile, "mkdtemp", in_tmp_path)
+
 
 NOTEBOOKS = sorted(glob.glob(os.path.join(os.path.dirname(__file__), "..", "..", "notebooks", "*.ipynb")))
 
