@@ -11,22 +11,21 @@ import matplotlib
 import pytest
 import torch
 
+from cliport.env.assets import PREFIX as ASSETS_PREFIX
+
 pytestmark = [pytest.mark.e2e]
-
-
-# The work folders the notebooks make with tempfile.mkdtemp(prefix=...): a user keeps them (hundreds of MB each).
-NOTEBOOK_FOLDERS = ("cliport-quickstart-", "cliport-language-", "cliport-affordances-", "cliport-study-",
-                    "cliport-explorer-")  # fmt: skip
 
 
 @pytest.fixture(autouse=True)
 def notebook_folders_in_tmp_path(monkeypatch, tmp_path):
-    """The notebooks' work folders go under ``tmp_path``, so that a passing test leaves nothing on the disk; every
-    other temporary folder stays where it was (multiprocessing's sockets need a short path)."""
+    """The notebooks' work folders (``tempfile.mkdtemp(prefix="cliport-<notebook>-")``, which a user keeps: hundreds of
+    MB each) go under ``tmp_path``, so that a passing test leaves nothing on the disk. Every other temporary folder
+    stays where it was: multiprocessing's sockets need a short path, and the process's asset folder
+    (``cliport.env.assets``) outlives a test."""
     mkdtemp = tempfile.mkdtemp
 
     def in_tmp_path(suffix=None, prefix=None, dir=None):
-        if dir is None and prefix is not None and prefix.startswith(NOTEBOOK_FOLDERS):
+        if dir is None and prefix and prefix.startswith("cliport-") and not prefix.startswith(ASSETS_PREFIX):
             dir = str(tmp_path)
         return mkdtemp(suffix, prefix, dir)
 
