@@ -64,6 +64,9 @@ class TrainConfig:
         time_budget_s: stop training once this many seconds of the training loop (its checks and saves
             included, summed over resumes) have passed, at most ``n_steps``; 0: no budget. The step it stops at is
             checkpointed as ``n_steps`` would be. The step count then depends on the machine's speed.
+        lr_cooldown: the learning rate falls linearly to zero over this last fraction of the run (of ``n_steps``,
+            or of ``time_budget_s`` where that ends the run first: :mod:`cliport.train.lr_schedule`); 0: constant,
+            the reference's. On CUDA it turns ``train_graphs`` off (a captured step holds its rate fixed).
         parallel_heads: on the CPU, each eager step differentiates the pick net's and the place nets' halves of the
             loss at once, in two threads with half the intra-op threads each (one backward elsewhere, and with
             ``compile``); the same gradients to float rounding, a step ~0.65x the time on 2 cores
@@ -103,6 +106,7 @@ class TrainConfig:
     compile: bool = False
     parallel_heads: bool = False
     time_budget_s: float = 0.0
+    lr_cooldown: float = 0.0
 
     @classmethod
     def build(cls, overrides: Mapping[str, Any] | None = None, base: Mapping[str, Any] | None = None) -> TrainConfig:
@@ -158,6 +162,8 @@ class TrainConfig:
         for key, low in minimum.items():
             if getattr(self, key) < low:
                 raise ConfigError(f"{key} must be >= {low}, got {getattr(self, key)}")
+        if not 0 <= self.lr_cooldown <= 1:
+            raise ConfigError(f"lr_cooldown is a fraction of the run, from 0 to 1, got {self.lr_cooldown}")
         if self.val_mode not in ("auto", "after", "beside"):
             raise ConfigError(f"val_mode must be auto, after or beside, got {self.val_mode!r}")
         if self.amp not in ("auto", "bf16", "none"):

@@ -33,6 +33,7 @@ from cliport.agents.base import PickPlaceAgent
 from cliport.agents.checkpoint import save_weights
 from cliport.env.config import expected_renderer
 from cliport.errors import RunDirError, UserError
+from cliport.train import graphed_step
 from cliport.train.checks import AgentCheck, CheckCurve
 from cliport.train.config import TrainConfig
 from cliport.train.dead_maps import DeadMapWatch
@@ -40,6 +41,7 @@ from cliport.train.graphed_step import TrainStep
 from cliport.train.live_start import ensure_live
 from cliport.train.loader import TrainingCollate, training_loader
 from cliport.train.loss_sums import LossSums
+from cliport.train.lr_schedule import LrCooldown
 from cliport.train.resume import load_optimizer_state
 from cliport.utils.device import bf16_native, resolve_device
 from cliport.utils.files import link_or_copy, load_torch, save_torch, write_json
@@ -193,6 +195,7 @@ def train(
     recipe = config.training_recipe()
     agent = make_agent(config.agent, config.agent_config).to(device)
     optimizer, applied = recipe.prepare(agent)
+    cooldown = LrCooldown(optimizer, config.lr_cooldown)  # before a resume loads the cooled rates
     if recipe.encoder_norms == "train" and not applied and agent.encoder is not None and agent.encoder.norm_stats():
         if rank == 0:
             print(
@@ -258,6 +261,14 @@ def train(
         # DDP steps eagerly: its gradient all-reduce would need its own warm-up and stream set-up to be captured.
         ddp_ids = [local_rank] if device.type == "cuda" else None
         model = nn.parallel.DistributedDataParallel(_LossModule(agent, recipe.loss), device_ids=ddp_ids)
+    graphs = config.train_graphs and world == 1
+    if graphs and config.lr_cooldown > 0 and device.type in graphed_step.CAPTURE_DEVICES:
+        graphs = False
+        if rank == 0:
+            print(
+                "note: the learning-rate cooldown trains eagerly (a captured step holds its learning rate fixed)",
+                file=sys.stderr,
+            )
     sums = LossSums(device)
     watch = DeadMapWatch(device=device, start_step=step)
     train_step = TrainStep(
@@ -266,7 +277,7 @@ def train(
         recipe.loss,
         autocast_dtype=autocast_dtype(config, device),
         observers=(sums.add, watch.observe),
-        graphs=config.train_graphs and world == 1,
+        graphs=graphs,
         compile=config.compile and world == 1,
         model=model,
         parallel_heads=config.parallel_heads and world == 1,
@@ -290,6 +301,10 @@ def train(
 
     def out_of_time() -> bool:
         return config.time_budget_s > 0 and trained_s() >= config.time_budget_s
+
+    def progress() -> float:
+        done = step / config.n_steps
+        return max(done, trained_s() / config.time_budget_s) if config.time_budget_s > 0 else done
 
     def save(kind: int | str) -> None:
         if rank != 0:
@@ -372,6 +387,7 @@ def train(
 
             agent.train()
             while step < config.n_steps and not out_of_time():
+                cooldown.apply(progress())
                 train_step(_next_batch(batches))
                 step += 1
                 sums.count()
