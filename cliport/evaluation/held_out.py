@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from cliport.data.seeds import episode_seeds
-from cliport.evaluation.instruction_following import _lesson_task, on_block
+from cliport.evaluation.instruction_following import block_poses, lesson_task, on_block
 
 
 @dataclass
@@ -41,18 +41,14 @@ def record_scenes(task_name: str, n_scenes: int, camera_scale: float = 1.0, mode
     """The first ``n_scenes`` scenes of ``mode`` (val: never the test scenes) of a put-one-block-in-bowl-* task:
     each reset once, its observation and its objects' poses kept (about half a second a scene)."""
     from cliport.env.environment import EnvConfig, Environment
-    from cliport.env.transforms import quat_to_yaw
     from cliport.tasks.blocks_assets import BOWL_TOLERANCE
 
-    task = _lesson_task(task_name, mode, "held-out checks")
+    task = lesson_task(task_name, mode, "held-out checks")
     scenes = []
     with Environment(EnvConfig.defaults(camera_scale=camera_scale), task=task) as env:
         for seed in episode_seeds(mode, n_scenes):
             obs = env.reset(seed=seed)
-            blocks = {}
-            for name, body in task.block_colors.items():
-                xyz, quat = task._pose(body)
-                blocks[name] = (np.asarray(xyz[:2], dtype=np.float64), float(quat_to_yaw(quat)))
+            blocks = block_poses(task)
             bowls = {name: np.asarray(pose[0][:2], dtype=np.float64) for name, pose in task.bowl_colors.items()}
             color, height = np.asarray(obs["color"]), np.asarray(obs["height"], dtype=np.float32)
             named = [(task.instruction_for(block, bowl), block, bowl) for block in blocks for bowl in bowls]

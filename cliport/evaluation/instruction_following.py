@@ -28,7 +28,7 @@ def on_block(pick_xy: np.ndarray, block_xy: np.ndarray, block_yaw: float) -> boo
     return max(abs(local[0]), abs(local[1])) <= BLOCK[0] / 2 + MARGIN
 
 
-def _lesson_task(task_name: str, mode: str, what: str) -> Any:
+def lesson_task(task_name: str, mode: str, what: str) -> Any:
     """The task ``task_name``; a ConfigError unless it can name any of its blocks (put-one-block-in-bowl-*)."""
     from cliport import tasks
 
@@ -38,6 +38,17 @@ def _lesson_task(task_name: str, mode: str, what: str) -> Any:
             f"{what} needs a task that names its blocks' colours (put-one-block-in-bowl-*), not {task_name}"
         )
     return task
+
+
+def block_poses(task: Any) -> dict[str, tuple[np.ndarray, float]]:
+    """Each block of a reset put-one-block-in-bowl-* scene: colour -> (centre xy (2,) m, yaw rad)."""
+    from cliport.env.transforms import quat_to_yaw
+
+    poses = {}
+    for name, body in task.block_colors.items():
+        xyz, quat = task._pose(body)
+        poses[name] = (np.asarray(xyz[:2], dtype=np.float64), float(quat_to_yaw(quat)))
+    return poses
 
 
 def instruction_following(
@@ -54,17 +65,13 @@ def instruction_following(
     block) and whether it was followed. ``on_swap(obs, act, instruction)`` sees every action.
     """
     from cliport.env.environment import EnvConfig, Environment
-    from cliport.env.transforms import quat_to_yaw
 
-    task = _lesson_task(task_name, mode, "instruction following")
+    task = lesson_task(task_name, mode, "instruction following")
     swaps = []
     with Environment(EnvConfig.defaults(camera_scale=camera_scale), task=task) as env:
         for seed in seeds:
             obs = env.reset(seed=seed)
-            blocks = {}
-            for name, body in task.block_colors.items():
-                xyz, quat = task._pose(body)
-                blocks[name] = (np.asarray(xyz[:2]), quat_to_yaw(quat))
+            blocks = block_poses(task)
             for name in blocks:
                 if name == task.goal_block:
                     continue
@@ -102,7 +109,7 @@ def two_instructions_figure(
     from cliport.env.environment import EnvConfig, Environment
     from cliport.evaluation.visualize import action_panel, save_png
 
-    task = _lesson_task(task_name, mode, "the two-instruction figure")
+    task = lesson_task(task_name, mode, "the two-instruction figure")
     with Environment(EnvConfig.defaults(camera_scale=camera_scale), task=task) as env:
         obs = env.reset(seed=seed)
         own = task.lang_goal
