@@ -97,6 +97,12 @@ def parse_args(device: str) -> Any:
     parser.add_argument(
         "--check-scenes", type=int, default=defaults.get("check_scenes", 0), help="validation scenes of each check"
     )
+    parser.add_argument(
+        "--check-start",
+        type=int,
+        default=defaults.get("check_start", 0),
+        help="the first step a check may come at (0: --check-every); the last step is always checked",
+    )
     parser.add_argument("--batch-size", type=int, default=defaults["batch_size"])
     parser.add_argument("--width", type=float, default=per_device["width"], help="network width (1.0 = published)")
     parser.add_argument(
@@ -107,6 +113,12 @@ def parse_args(device: str) -> Any:
     )
     parser.add_argument(
         "--lr", type=float, default=defaults.get("lr"), help="Adam learning rate (default: the agent's)"
+    )
+    parser.add_argument(
+        "--lr-cooldown",
+        type=float,
+        default=per_device.get("lr_cooldown", 0.0),
+        help="the learning rate falls linearly to zero over this last fraction of training (0: constant)",
     )
     parser.add_argument(
         "--n-rotations", type=int, help="place rotations (default: 1 where the task's place yaw says nothing, else 36)"
@@ -146,9 +158,11 @@ def parse_args(device: str) -> Any:
     for name in ("demos", "steps", "batch_size", "episodes"):
         if getattr(args, name) < 1:
             raise ConfigError(f"--{name.replace('_', '-')} must be at least 1, got {getattr(args, name)}")
-    for name in ("minutes", "check_every", "check_scenes"):
+    for name in ("minutes", "check_every", "check_scenes", "check_start"):
         if getattr(args, name) < 0:
             raise ConfigError(f"--{name.replace('_', '-')} must be at least 0, got {getattr(args, name)}")
+    if not 0 <= args.lr_cooldown <= 1:
+        raise ConfigError(f"--lr-cooldown is a fraction of the training, from 0 to 1, got {args.lr_cooldown}")
     args.aims = defaults.get("aims")
     if args.pair_contrasts is None:  # on by default where there are a scene's instructions to pair
         args.pair_contrasts = bool(defaults.get("pair_contrasts", False)) and args.every_instruction
@@ -201,6 +215,7 @@ def train_config(
             "val_episodes": 0,
             "checkpoint_steps": [args.steps],
             "time_budget_s": args.minutes * 60,
+            "lr_cooldown": args.lr_cooldown,
             "num_workers": 1,
             "every_instruction": args.every_instruction,
             "pair_contrasts": args.pair_contrasts,
@@ -239,9 +254,10 @@ def machine_speed(config: TrainConfig, args: Any, device: str) -> dict[str, Any]
 
 
 def held_out_check(args: Any) -> HeldOutCheck:
-    """The lesson's checks on held-out validation scenes while it trains (``--check-every``, ``--check-scenes``)."""
+    """The lesson's checks on held-out validation scenes while it trains (``--check-every``, ``--check-scenes``,
+    ``--check-start``)."""
     scenes = record_scenes(args.task, args.check_scenes, args.camera_scale)
-    return HeldOutCheck(scenes, args.check_every, start=args.check_every)
+    return HeldOutCheck(scenes, args.check_every, start=args.check_start or args.check_every)
 
 
 def aims_verdict(aims: dict[str, float], result: dict[str, Any], following: dict[str, Any], total_s: float) -> dict:
@@ -354,6 +370,7 @@ def main() -> None:
             "width": args.width,
             "map_scale": args.map_scale,
             "lr": agent.config.lr,
+            "lr_cooldown": args.lr_cooldown,
             "n_rotations": n_rotations,
             "batch_size": args.batch_size,
             "seed": args.seed,

@@ -47,13 +47,19 @@ def test_bad_settings_are_one_line(tmp_path, one_error_line):
     one_error_line(out.returncode, out.stderr, "unknown task 'nope'", status=2)
     out = _run("--out", str(tmp_path), "--language", "--minutes", "-1")
     one_error_line(out.returncode, out.stderr, "--minutes must be at least 0, got -1.0", status=2)
+    out = _run("--out", str(tmp_path), "--language", "--check-start", "-1")
+    one_error_line(out.returncode, out.stderr, "--check-start must be at least 0, got -1", status=2)
+    out = _run("--out", str(tmp_path), "--language", "--lr-cooldown", "2")
+    one_error_line(
+        out.returncode, out.stderr, "--lr-cooldown is a fraction of the training, from 0 to 1, got 2.0", status=2
+    )
     assert not any(tmp_path.iterdir())
 
 
 @pytest.mark.e2e
 def test_the_language_lesson_measures_instruction_following_and_draws_two_instructions(tmp_path):
     out = _run("--language", "--out", str(tmp_path), "--demos", "1", "--steps", "2", "--episodes", "1",
-               "--swap-scenes", "1", "--clip-weights", "random")  # fmt: skip
+               "--swap-scenes", "1", "--clip-weights", "random", "--check-scenes", "2")  # fmt: skip
     assert out.returncode == 0, out.stderr
     assert "2/4 training two_stream on cpu" in out.stdout and "CLIP weights random" in out.stdout
     summary = json.loads((tmp_path / "results.json").read_text())
@@ -77,7 +83,8 @@ def test_the_language_lesson_measures_instruction_following_and_draws_two_instru
     training = summary["training"]
     assert training["steps"] == 2 and training["tested_step"] == 2 and training["trained_s"] > 0
     assert [row["step"] for row in training["held_out"]["curve"]] == [2]
-    assert training["held_out"]["check"]["samples"] == 24  # 4 validation scenes x 6 instructions
+    assert training["held_out"]["check"]["samples"] == 12  # 2 validation scenes x 6 instructions
+    assert training["held_out"]["check"]["start"] == 900 and training["lr_cooldown"] == 0.25
     assert not summary["aims"]["met"] and "The lesson's aims" in out.stdout and "not met: solved" in out.stdout
 
 
@@ -123,3 +130,13 @@ def test_the_lesson_pairs_contrasts_where_it_has_every_instruction(flags, pairs,
     monkeypatch.setattr(sys, "argv", ["quickstart.py", "--language", *flags])
     args = _quickstart_module().parse_args("cpu")
     assert args.pair_contrasts is pairs
+
+
+def test_the_cpu_lesson_cools_its_rate_down_and_checks_ten_scenes_from_step_900(monkeypatch):
+    monkeypatch.setattr(sys, "argv", ["quickstart.py", "--language"])
+    quickstart = _quickstart_module()
+    args = quickstart.parse_args("cpu")
+    assert (args.lr_cooldown, args.check_scenes, args.check_every, args.check_start) == (0.25, 10, 300, 900)
+    assert quickstart.parse_args("cuda").lr_cooldown == 0.0  # the GPU lesson's measured settings: a constant rate
+    monkeypatch.setattr(sys, "argv", ["quickstart.py"])
+    assert quickstart.parse_args("cpu").lr_cooldown == 0.0  # the transporter_only quickstart: unchanged
