@@ -302,7 +302,7 @@ def train(
     def out_of_time() -> bool:
         return config.time_budget_s > 0 and trained_s() >= config.time_budget_s
 
-    def progress() -> float:
+    def run_fraction() -> float:
         done = step / config.n_steps
         return max(done, trained_s() / config.time_budget_s) if config.time_budget_s > 0 else done
 
@@ -387,7 +387,7 @@ def train(
 
             agent.train()
             while step < config.n_steps and not out_of_time():
-                cooldown.apply(progress())
+                cooldown.apply(run_fraction())
                 train_step(_next_batch(batches))
                 step += 1
                 sums.count()

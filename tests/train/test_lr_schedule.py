@@ -78,7 +78,8 @@ def test_a_cooldown_trains_eagerly_where_steps_would_be_captured(
     make_synthetic_dataset(str(tmp_path), n_episodes=2)
     summary = train(_config(tmp_path, tiny_config), progress=False)
     assert summary["step_kinds"] == {"graph_replays": 0, "eager": 8}
-    assert "cooldown trains eagerly" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "cooldown trains eagerly" in err and "train transporter_only" not in err  # progress=False: no bar
 
 
 def test_the_cooldown_is_a_fraction_and_a_flag(tmp_path) -> None:
