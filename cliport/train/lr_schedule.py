@@ -28,7 +28,10 @@ class LrCooldown:
         self.base = [float(group["lr"]) for group in optimizer.param_groups]
 
     def apply(self, progress: float) -> float:
-        """Set the rates for a step taken at ``progress``; returns the multiplier."""
+        """Set the rates for a step taken at ``progress``; returns the multiplier. Without a cooldown the rates are
+        left as they are (a resumed run keeps the rates its optimiser state holds, as before cooldowns existed)."""
+        if self.cooldown <= 0:
+            return 1.0
         factor = cooldown_factor(progress, self.cooldown)
         for group, base in zip(self.optimizer.param_groups, self.base, strict=True):
             group["lr"] = base * factor
