@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import threading
 from collections.abc import Iterator
 
 import torch
@@ -22,6 +23,13 @@ _warned: set[tuple[str, str]] = set()
 
 #: Strides of the five trunk levels every encoder returns: stem, layer1, layer2, layer3, layer4.
 TRUNK_STRIDES = (4, 4, 8, 16, 32)
+#: How many recent images :meth:`FrozenEncoder.image_features` keeps the trunk features of, on these devices (not
+#: CUDA: comparing images reads the device, which a captured CUDA graph must never do).
+RECENT_IMAGES = 4
+RECENT_IMAGE_DEVICES = {"cpu"}
+# Guards every encoder's recent images: the pick and place halves of a step run in two threads at once. One lock
+# for all (not one per encoder) so that an encoder can still be deep-copied and pickled.
+_recent_lock = threading.Lock()
 
 
 class FrozenEncoder(nn.Module):
@@ -43,6 +51,9 @@ class FrozenEncoder(nn.Module):
         self._sentence_cache: dict[str, torch.Tensor] = {}
         # The image trunk's float32 weights (on the CPU) while it runs in a lower precision.
         self._fp32_image_state: dict[str, torch.Tensor] | None = None
+        # (image, its trunk features) of the last RECENT_IMAGES CPU calls with the trunk's own statistics, newest
+        # last.
+        self._recent: list[tuple[torch.Tensor, list[torch.Tensor]]] = []
 
     def freeze(self) -> None:
         """No gradients and eval mode for every submodule (batch-norm statistics never drift)."""
@@ -68,6 +79,7 @@ class FrozenEncoder(nn.Module):
         restores them exactly (a bfloat16 round trip alone would leave every weight rounded).
         """
         module = self.image_module()
+        self.forget_images()
         if dtype != torch.float32:
             if self._fp32_image_state is None and self.image_dtype() == torch.float32:
                 self._fp32_image_state = {k: v.detach().to("cpu", copy=True) for k, v in module.state_dict().items()}
@@ -112,14 +124,44 @@ class FrozenEncoder(nn.Module):
         images normalised by its own statistics, and update the running statistics (``norm_stats``' tensors,
         in place) group after group, as that many reference steps of one sample each would (the reference
         CLIPort's training steps put its CLIP copies in training mode). Weights never change.
+
+        On the CPU, with the trunk's own statistics, the features of the last :data:`RECENT_IMAGES` images are
+        kept and an equal image (every value) gets them again instead of a second pass: a contrasting pair's
+        two steps (``pair_contrasts``) show the pick and key nets one augmented image. A batch of one image
+        repeated (a held-out check's scene under its six instructions) runs the trunk on one copy. The features
+        are the same tensors (expanded views for a repeated image); callers must not write into them.
         """
         stats = norm_stats or {}
         if batch_stats_group is None:
-            with self._swapped_buffers(stats):
-                return [f.float() for f in self._trunk(rgb.float())]
+            if stats or rgb.device.type not in RECENT_IMAGE_DEVICES:
+                with self._swapped_buffers(stats):
+                    return [f.float() for f in self._trunk(rgb.float())]
+            return self._recent_features(rgb)
         with self._swapped_buffers(stats, write_back=True), self._norms_training():
             groups = [self._trunk(chunk) for chunk in rgb.float().split(batch_stats_group)]
         return [torch.cat(levels).float() for levels in zip(*groups, strict=True)]
+
+    def _recent_features(self, rgb: torch.Tensor) -> list[torch.Tensor]:
+        with _recent_lock:
+            for i, (seen, features) in enumerate(self._recent):
+                if seen.shape == rgb.shape and seen.dtype == rgb.dtype and torch.equal(seen, rgb):
+                    self._recent.append(self._recent.pop(i))
+                    return features
+        n = rgb.shape[0]
+        if n > 1 and bool((rgb == rgb[:1]).flatten(1).all(1).all()):
+            features = [f.float().expand(n, *f.shape[1:]) for f in self._trunk(rgb[:1].float())]
+        else:
+            features = [f.float() for f in self._trunk(rgb.float())]
+        with _recent_lock:
+            self._recent.append((rgb.detach().clone(), features))
+            del self._recent[:-RECENT_IMAGES]
+        return features
+
+    def forget_images(self) -> None:
+        """Drop the kept trunk features of recent images (see :meth:`image_features`); done whenever the
+        trunk's weights, dtype or device change."""
+        with _recent_lock:
+            self._recent.clear()
 
     @contextlib.contextmanager
     def _norms_training(self) -> Iterator[None]:
@@ -180,9 +222,11 @@ class FrozenEncoder(nn.Module):
 
     def _apply(self, fn, recurse: bool = True):  # type: ignore[no-untyped-def]  # torch's private hook, untyped
         self._sentence_cache.clear()
+        self.forget_images()
         return super()._apply(fn, recurse)
 
     def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):  # type: ignore[no-untyped-def]  # torch's hook
+        self.forget_images()
         # Weights loaded into a bfloat16 trunk also replace the float32 copy it will be restored from.
         if self._fp32_image_state is not None:
             module = self.image_module()
