@@ -42,3 +42,15 @@ def test_the_probe_trains_the_configured_agent_and_leaves_the_random_state(tmp_p
 def test_the_probe_refuses_no_steps(tmp_path) -> None:
     with pytest.raises(ValueError, match="steps >= 1"):
         probe.step_seconds(_config(tmp_path, "transporter_only"), steps=0)
+
+
+def test_probe_batches_show_new_images_and_pairs_as_training_does() -> None:
+    alone = probe.probe_batches(4, batch_size=2)
+    assert all(not torch.equal(a["color"], b["color"]) for a, b in zip(alone, alone[1:], strict=False))
+    assert [b["lang"] for b in alone] == [list(probe.PROBE_INSTRUCTIONS)] * 4
+
+    paired = probe.probe_batches(4, batch_size=1, pair_contrasts=True)
+    assert torch.equal(paired[1]["color"], paired[0]["color"]) and torch.equal(paired[1]["height"], paired[0]["height"])
+    assert paired[1]["lang"] != paired[0]["lang"]
+    assert not torch.equal(paired[2]["color"], paired[1]["color"])
+    assert torch.equal(paired[3]["color"], paired[2]["color"])
