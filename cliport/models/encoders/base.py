@@ -148,7 +148,7 @@ class FrozenEncoder(nn.Module):
                     self._recent.append(self._recent.pop(i))
                     return features
         n = rgb.shape[0]
-        if n > 1 and bool((rgb == rgb[:1]).flatten(1).all(1).all()):
+        if n > 1 and torch.equal(rgb, rgb[:1].expand_as(rgb)):
             features = [f.float().expand(n, *f.shape[1:]) for f in self._trunk(rgb[:1].float())]
         else:
             features = [f.float() for f in self._trunk(rgb.float())]
