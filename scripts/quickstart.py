@@ -58,18 +58,18 @@ def parse_args(device: str) -> Any:
     defaults = read_defaults("quickstart")
     if language:
         defaults = defaults["language"]
-    per_device = defaults[device]
+    setting = {**defaults, **defaults[device]}  # a device's own value over the section's
     parser = OneLineParser(prog="quickstart.py", description=__doc__.splitlines()[0])
     parser.add_argument(
         "--language",
         action="store_true",
         help="the language lesson: a language-conditioned agent, instruction following, a two-instruction figure",
     )
-    parser.add_argument("--task", default=defaults["task"])
-    parser.add_argument("--agent", default=defaults["agent"], choices=agent_names())
+    parser.add_argument("--task", default=setting["task"])
+    parser.add_argument("--agent", default=setting["agent"], choices=agent_names())
     parser.add_argument(
         "--clip-weights",
-        default=defaults.get("clip_weights", "auto"),
+        default=setting.get("clip_weights", "auto"),
         help="CLIP's weights for agents that use CLIP: 'auto' (the published ones where they can be had, "
         "else seeded random ones, said and recorded), 'openai', 'random' or a file",
     )
@@ -78,61 +78,59 @@ def parse_args(device: str) -> Any:
         default="out/quickstart-language" if language else "out/quickstart",
         help="output folder (demos, run, pictures, results.json)",
     )
-    parser.add_argument("--demos", type=int, default=defaults["demos"], help="oracle demonstrations to train on")
+    parser.add_argument("--demos", type=int, default=setting["demos"], help="oracle demonstrations to train on")
     parser.add_argument(
-        "--steps", type=int, default=per_device["steps"], help="training steps (with --minutes: at most this many)"
+        "--steps", type=int, default=setting["steps"], help="training steps (with --minutes: at most this many)"
     )
     parser.add_argument(
         "--minutes",
         type=float,
-        default=per_device.get("train_minutes", 0.0),
+        default=setting.get("train_minutes", 0.0),
         help="train for this many minutes (checks and saves included) instead of a fixed step count; 0: --steps",
     )
     parser.add_argument(
         "--check-every",
         type=int,
-        default=defaults.get("check_every", 0),
+        default=setting.get("check_every", 0),
         help="steps between checks on held-out validation scenes while training (the best one is tested); 0: none",
     )
     parser.add_argument(
-        "--check-scenes", type=int, default=defaults.get("check_scenes", 0), help="validation scenes of each check"
+        "--check-scenes", type=int, default=setting.get("check_scenes", 0), help="validation scenes of each check"
     )
     parser.add_argument(
         "--check-start",
         type=int,
-        default=defaults.get("check_start", 0),
+        default=setting.get("check_start", 0),
         help="the first step a check may come at (0: --check-every); the last step is always checked",
     )
-    parser.add_argument("--batch-size", type=int, default=defaults["batch_size"])
-    parser.add_argument("--width", type=float, default=per_device["width"], help="network width (1.0 = published)")
+    parser.add_argument("--batch-size", type=int, default=setting["batch_size"])
+    parser.add_argument("--width", type=float, default=setting["width"], help="network width (1.0 = published)")
     parser.add_argument(
         "--map-scale",
         type=float,
-        default=per_device.get("map_scale", 1.0),
+        default=setting.get("map_scale", 1.0),
         help="the nets' map size / the top-down map's (1.0 = published; see docs/agents.md)",
     )
-    parser.add_argument(
-        "--lr", type=float, default=defaults.get("lr"), help="Adam learning rate (default: the agent's)"
-    )
+    parser.add_argument("--lr", type=float, default=setting.get("lr"), help="Adam learning rate (default: the agent's)")
     parser.add_argument(
         "--lr-cooldown",
         type=float,
-        default=per_device.get("lr_cooldown", 0.0),
+        default=setting.get("lr_cooldown", 0.0),
         help="the learning rate falls linearly to zero over this last fraction of training (0: constant)",
     )
     parser.add_argument(
         "--n-rotations", type=int, help="place rotations (default: 1 where the task's place yaw says nothing, else 36)"
     )
-    parser.add_argument("--episodes", type=int, default=defaults["episodes"], help="test episodes")
-    parser.add_argument("--camera-scale", type=float, default=per_device["camera_scale"])
+    parser.add_argument("--episodes", type=int, default=setting["episodes"], help="test episodes")
+    parser.add_argument("--camera-scale", type=float, default=setting["camera_scale"])
     parser.add_argument("--seed", type=int, default=0, help="training seed")
     parser.add_argument(
-        "--recipe", default=defaults["recipe"], choices=recipe_names(), help="training recipe (configs/recipes.toml)"
+        "--recipe", default=setting["recipe"], choices=recipe_names(), help="training recipe (configs/recipes.toml)"
     )
     parser.add_argument(
         "--every-instruction",
         action=argparse.BooleanOptionalAction,
-        default=defaults.get("every_instruction", False),
+        default=setting.get("every_instruction", False),
         help="record every instruction of each demo scene with the oracle's action for it, and train on all of them",
     )
     parser.add_argument(
@@ -145,13 +143,13 @@ def parse_args(device: str) -> Any:
     parser.add_argument(
         "--center-sentences",
         action=argparse.BooleanOptionalAction,
-        default=defaults.get("center_sentences", False),
+        default=setting.get("center_sentences", False),
         help="the agent reads sentence features centred on its training instructions' mean (language agents)",
     )
     parser.add_argument(
         "--swap-scenes",
         type=int,
-        default=defaults.get("swap_scenes", 0),
+        default=setting.get("swap_scenes", 0),
         help="test scenes on which instruction following is measured (each gives one swap per other block)",
     )
     args = parser.parse_args()
@@ -163,9 +161,9 @@ def parse_args(device: str) -> Any:
             raise ConfigError(f"--{name.replace('_', '-')} must be at least 0, got {getattr(args, name)}")
     if not 0 <= args.lr_cooldown <= 1:
         raise ConfigError(f"--lr-cooldown is a fraction of the training, from 0 to 1, got {args.lr_cooldown}")
-    args.aims = defaults.get("aims")
+    args.aims = setting.get("aims")
     if args.pair_contrasts is None:  # on by default where there are a scene's instructions to pair
-        args.pair_contrasts = bool(defaults.get("pair_contrasts", False)) and args.every_instruction
+        args.pair_contrasts = bool(setting.get("pair_contrasts", False)) and args.every_instruction
     tasks.resolve(args.task)
     if args.center_sentences and not agent_class(args.agent).uses_language:
         print(f"note: {args.agent} reads no instruction, so there are no sentence features to centre", file=sys.stderr)

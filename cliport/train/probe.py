@@ -21,27 +21,30 @@ PROBE_INSTRUCTIONS = ("put the red block in the green bowl", "put the blue block
 
 
 def probe_batches(n: int, batch_size: int, pair_contrasts: bool = False) -> list[dict[str, torch.Tensor | list[str]]]:
-    """``n`` synthetic training batches of ``batch_size`` samples, each on images of its own, as training sees
-    them: a step on an image seen the step before costs less (the frozen trunk keeps recent images' features).
-    ``pair_contrasts``: every second batch repeats the one before it under the other instruction, as the
-    contrasting pairs do."""
+    """``n`` synthetic training batches of ``batch_size`` samples on images of their own, as training sees them:
+    the frozen trunk keeps recent images' features, so an image seen before costs less. ``pair_contrasts``:
+    the samples come in pairs, each image twice under the two instructions in turn, as the contrasting pairs do;
+    at batch 1 the pair is two steps, at batch 2 one batch."""
     h, w = heightmap_shape()
     generator = np.random.default_rng(0)
+    per_image = 2 if pair_contrasts else 1
+    images = [
+        (
+            torch.from_numpy(generator.integers(0, 256, (h, w, 3), dtype=np.uint8)),
+            torch.from_numpy(generator.uniform(0, 0.1, (h, w)).astype(np.float32)),
+        )
+        for _ in range(-(-n * batch_size // per_image))
+    ]
     batches: list[dict[str, torch.Tensor | list[str]]] = []
-    color = height = torch.empty(0)
     for i in range(n):
-        repeat = pair_contrasts and i % 2 == 1
-        lang = PROBE_INSTRUCTIONS[::-1] if repeat else PROBE_INSTRUCTIONS
-        if not repeat:
-            color = torch.from_numpy(generator.integers(0, 256, (batch_size, h, w, 3), dtype=np.uint8))
-            height = torch.from_numpy(generator.uniform(0, 0.1, (batch_size, h, w)).astype(np.float32))
+        samples = range(i * batch_size, (i + 1) * batch_size)
         batches.append({
-            "color": color,
-            "height": height,
+            "color": torch.stack([images[k // per_image][0] for k in samples]),
+            "height": torch.stack([images[k // per_image][1] for k in samples]),
             "pick_pix": torch.tensor([[h // 3, w // 3]] * batch_size),
             "place_pix": torch.tensor([[2 * h // 3, 2 * w // 3]] * batch_size),
             "place_rot": torch.zeros(batch_size, dtype=torch.long),
-            "lang": [lang[j % 2] for j in range(batch_size)],
+            "lang": [PROBE_INSTRUCTIONS[k % 2] for k in samples],
         })  # fmt: skip
     return batches
 

@@ -132,11 +132,21 @@ def test_the_lesson_pairs_contrasts_where_it_has_every_instruction(flags, pairs,
     assert args.pair_contrasts is pairs
 
 
-def test_the_cpu_lesson_cools_its_rate_down_and_checks_ten_scenes_from_step_900(monkeypatch):
+def test_the_cpu_lesson_trains_pairs_in_one_batch_cools_its_rate_down_and_checks_ten_scenes(monkeypatch):
     monkeypatch.setattr(sys, "argv", ["quickstart.py", "--language"])
     quickstart = _quickstart_module()
-    args = quickstart.parse_args("cpu")
-    assert (args.lr_cooldown, args.check_scenes, args.check_every, args.check_start) == (0.25, 10, 300, 900)
-    assert quickstart.parse_args("cuda").lr_cooldown == 0.0  # the GPU lesson's measured settings: a constant rate
+    cpu = quickstart.parse_args("cpu")
+    assert (cpu.batch_size, cpu.lr_cooldown, cpu.check_scenes, cpu.check_every, cpu.check_start) == (
+        2,
+        0.25,
+        10,
+        150,
+        450,
+    )
+    cuda = quickstart.parse_args("cuda")  # the GPU lesson's measured settings: batch 1, a constant rate
+    assert (cuda.batch_size, cuda.lr_cooldown, cuda.check_every, cuda.check_start) == (1, 0.0, 300, 900)
+    monkeypatch.setattr(sys, "argv", ["quickstart.py", "--language", "--batch-size", "1", "--check-start", "900"])
+    assert (quickstart.parse_args("cpu").batch_size, quickstart.parse_args("cpu").check_start) == (1, 900)
     monkeypatch.setattr(sys, "argv", ["quickstart.py"])
-    assert quickstart.parse_args("cpu").lr_cooldown == 0.0  # the transporter_only quickstart: unchanged
+    plain = quickstart.parse_args("cpu")  # the transporter_only quickstart: unchanged
+    assert (plain.batch_size, plain.lr_cooldown) == (1, 0.0)

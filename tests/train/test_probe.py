@@ -54,3 +54,11 @@ def test_probe_batches_show_new_images_and_pairs_as_training_does() -> None:
     assert paired[1]["lang"] != paired[0]["lang"]
     assert not torch.equal(paired[2]["color"], paired[1]["color"])
     assert torch.equal(paired[3]["color"], paired[2]["color"])
+
+
+def test_probe_batches_of_two_hold_a_pair_as_training_does() -> None:
+    batches = probe.probe_batches(3, batch_size=2, pair_contrasts=True)
+    for batch in batches:
+        assert torch.equal(batch["color"][1], batch["color"][0]) and torch.equal(batch["height"][1], batch["height"][0])
+        assert batch["lang"] == list(probe.PROBE_INSTRUCTIONS)
+    assert not torch.equal(batches[1]["color"][0], batches[0]["color"][0])
