@@ -84,7 +84,8 @@ def test_the_language_lesson_measures_instruction_following_and_draws_two_instru
     assert training["steps"] == 2 and training["tested_step"] == 2 and training["trained_s"] > 0
     assert [row["step"] for row in training["held_out"]["curve"]] == [2]
     assert training["held_out"]["check"]["samples"] == 12  # 2 validation scenes x 6 instructions
-    assert training["held_out"]["check"]["start"] == 900 and training["lr_cooldown"] == 0.25
+    assert training["held_out"]["check"]["start"] == 450 and training["lr_cooldown"] == 0.25
+    assert training["batch_size"] == 2  # the CPU lesson's: each batch a contrasting pair
     assert not summary["aims"]["met"] and "The lesson's aims" in out.stdout and "not met: solved" in out.stdout
 
 
