@@ -45,7 +45,7 @@ from cliport.train.config import TrainConfig
 from cliport.train.probe import step_seconds
 from cliport.train.recipes import recipe_names
 from cliport.train.trainer import load_run_config, train
-from cliport.utils.config import read_defaults
+from cliport.utils.config import device_defaults
 from cliport.utils.files import read_json, write_json
 from cliport.utils.run_dir import RunDir
 from cliport.utils.tensorboard import log_result, summary_writer
@@ -55,10 +55,7 @@ def parse_args(device: str) -> Any:
     early = argparse.ArgumentParser(add_help=False)
     early.add_argument("--language", action="store_true")
     language = early.parse_known_args()[0].language
-    defaults = read_defaults("quickstart")
-    if language:
-        defaults = defaults["language"]
-    setting = {**defaults, **defaults[device]}  # a device's own value over the section's
+    setting = device_defaults("quickstart", device, "language" if language else None)
     parser = OneLineParser(prog="quickstart.py", description=__doc__.splitlines()[0])
     parser.add_argument(
         "--language",

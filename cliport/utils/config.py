@@ -41,6 +41,17 @@ def read_defaults(name: str) -> dict[str, Any]:
         raise ConfigError(f"{path}: {e}") from e
 
 
+def device_defaults(name: str, device: str, section: str | None = None) -> dict[str, Any]:
+    """The table in ``configs/<name>.toml`` (or its ``section``) with the values of its ``device`` table (``cpu``,
+    ``cuda``) over its own: ``[language.cpu]`` of ``quickstart.toml`` overrides ``[language]`` on a CPU."""
+    table = read_defaults(name)
+    if section is not None:
+        table = table[section]
+    if device not in table:
+        raise ConfigError(f"configs/{name}.toml has no [{'.'.join(filter(None, (section, device)))}] table")
+    return {**table, **table[device]}
+
+
 @cache
 def field_docs(cls: type) -> dict[str, str]:
     """``{field: description}`` from the ``Args:`` section of a class docstring (inherited ones too)."""

@@ -7,7 +7,16 @@ import pytest
 
 from cliport.env.environment import EnvConfig
 from cliport.errors import ConfigError
-from cliport.utils.config import add_flags, field_docs, from_dict, given_flags, load, merge
+from cliport.utils.config import (
+    add_flags,
+    device_defaults,
+    field_docs,
+    from_dict,
+    given_flags,
+    load,
+    merge,
+    read_defaults,
+)
 
 
 @dataclass
@@ -90,3 +99,14 @@ def test_load_reads_the_shipped_defaults_and_merges_overrides():
     with pytest.raises(ConfigError, match="env.toml.*unknown EnvConfig key\\(s\\) 'camera_scal'"):
         load(EnvConfig, "env", {"camera_scal": 0.5})
     assert merge({"a": {"b": 1, "c": 2}}, {"a": {"c": 3}}) == {"a": {"b": 1, "c": 3}}
+
+
+def test_device_defaults_put_a_device_table_over_its_section():
+    language = read_defaults("quickstart")["language"]
+    cpu = device_defaults("quickstart", "cpu", "language")
+    assert cpu["batch_size"] == language["cpu"]["batch_size"] != language["batch_size"]
+    assert cpu["task"] == language["task"] and cpu["width"] == language["cpu"]["width"]
+    assert device_defaults("quickstart", "cuda", "language")["batch_size"] == language["batch_size"]
+    assert device_defaults("quickstart", "cpu")["task"] == read_defaults("quickstart")["task"]
+    with pytest.raises(ConfigError, match=r"no \[language.tpu\] table"):
+        device_defaults("quickstart", "tpu", "language")
