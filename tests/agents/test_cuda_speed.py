@@ -60,6 +60,12 @@ def real() -> list[tuple[dict[str, np.ndarray], str]]:
 
 
 @functools.cache
+def _checkpoint_dir() -> tempfile.TemporaryDirectory:
+    """The fixture checkpoints' folder, removed when the test process exits."""
+    return tempfile.TemporaryDirectory(prefix="cliport-cuda-test-")
+
+
+@functools.cache
 def _trained_checkpoint(name: str) -> str:
     """A tiny agent trained 40 steps on the real observations (towards picking each scene's highest pixel
     and placing it back), so that its heatmaps have clear maxima; saved once per test session."""
@@ -81,7 +87,7 @@ def _trained_checkpoint(name: str) -> str:
     optimizer = agent.make_optimizer()
     for _ in range(40):
         agent.train_step(batch, optimizer)
-    path = os.path.join(tempfile.mkdtemp(prefix="cliport-cuda-test-"), f"{name}.pt")
+    path = os.path.join(_checkpoint_dir().name, f"{name}.pt")
     agent.save_checkpoint(path)
     return path
 

@@ -3,6 +3,9 @@ The halves share no parameter, so with the same per-op thread count the step tra
 
 from __future__ import annotations
 
+import gc
+import threading
+
 import pytest
 import torch
 
@@ -90,3 +93,16 @@ def test_parallel_heads_apply_to_plain_cpu_steps_only(tiny_config) -> None:
         agent, optimizer, graphs=False, parallel_heads=True, autocast_dtype=torch.bfloat16
     ).parallel_heads
     assert not TrainStep(agent, optimizer, graphs=False, parallel_heads=False).parallel_heads
+
+
+def test_the_place_thread_ends_with_its_step(tiny_config, threads) -> None:
+    torch.set_num_threads(2)
+    agent = make_agent("transporter_only", tiny_config("transporter_only", n_rotations=4))
+    step = TrainStep(agent, agent.make_optimizer(), graphs=False, parallel_heads=True)
+    before = set(threading.enumerate())
+    step(_batch(0))
+    [thread] = [t for t in set(threading.enumerate()) - before if t.name.startswith("place-head")]
+    del step
+    gc.collect()
+    thread.join(timeout=10)
+    assert not thread.is_alive()
