@@ -109,11 +109,6 @@ def test_quickstart_notebook_learns(monkeypatch, tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(
-    reason="seed 0's quickstart lesson meets the aims on both CPU paths at batch 2 (AVX2 19 of 20 solved, 39 of 40 "
-    "swaps; AVX-512 18 and 39), but this notebook run of it (AVX-512, 831 steps under pytest) followed 35 of 40: "
-    "docs/language-lesson.md"
-)
 def test_language_notebook_learns(monkeypatch, tmp_path):
     """With its default parameters (the CPU language lesson's settings) the notebook trains a two-stream agent
     that solves most of its 20 test episodes and picks the block a swapped instruction names."""
