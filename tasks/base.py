@@ -1,8 +1,9 @@
 """Goal machinery shared by every task: goal steps, pose/zone metrics, rewards and the scripted oracle.
 
 A task builds its scene in ``reset`` and appends ``GoalStep``s. ``reward()`` returns the change in
-(completed shares + the current step's partial reward), pops steps once they are complete, and
-``done()`` says whether nothing remains. ``oracle_act`` is the scripted expert used for demos.
+(completed shares + the current step's partial reward) and pops the current step once it is complete, at
+most one per call (per action), as the reference banks them; ``done()`` says whether nothing remains.
+``oracle_act`` is the scripted expert used for demos.
 """
 
 from __future__ import annotations
@@ -23,6 +24,8 @@ if TYPE_CHECKING:
     from cliport.env.environment import Environment
 
 YAW_TOLERANCE = math.radians(15)
+#: A goal step is complete when its reward is within this of its share (the reference's test).
+STEP_DONE_TOLERANCE = 0.01
 
 
 @dataclass
@@ -206,15 +209,20 @@ class Task:
         return step.share * float(np.mean(fractions))
 
     def reward(self) -> tuple[float, dict[str, Any]]:
-        """(reward since the last call, info). Completed steps are popped and banked."""
+        """(reward since the last call, info), called once per action.
+
+        As the reference's ``Task.reward()`` banks them: only the current (first) goal step is scored, and it
+        is popped and banked once its reward is within 0.01 of its share, so at most one step is completed
+        per call. A later step already met is credited only once it is the current one, at a later call.
+        """
         current = 0.0
-        while self.goals:
-            current = self.step_reward(self.goals[0])
-            if current < self.goals[0].share - 1e-3:
-                break
-            self.progress += self.goals[0].share
-            self.goals.pop(0)
-            current = 0.0
+        if self.goals:
+            step = self.goals[0]
+            current = self.step_reward(step)
+            if abs(step.share - current) < STEP_DONE_TOLERANCE:
+                self.progress += step.share
+                self.goals.pop(0)
+                current = 0.0
         total = self.progress + current
         delta = total - self._last_total
         self._last_total = total

@@ -69,6 +69,27 @@ def test_partial_credit_banking_and_done(env):
     assert reward == pytest.approx(0.5) and info["total_reward"] == pytest.approx(1.0) and task.done()
 
 
+def test_one_goal_step_banked_per_action_as_the_reference(env):
+    """A later step met first is credited only once it is the current step, at the next call (action)."""
+    env.reset(0)
+    task = env.task
+    a, b, c = _block(env, (0.4, 0.2)), _block(env, (0.4, -0.2)), _block(env, (0.3, 0.0))
+    for body, xy in ((a, (0.6, 0.2)), (b, (0.6, -0.2)), (c, (0.5, 0.0))):
+        task.add_goal(GoalStep([body], np.ones((1, 1)), [((*xy, 0.02), (0, 0, 0, 1))], share=1 / 3))
+    _move(env, c, (0.5, 0.0))  # the third step's object first: nothing, the first step is current
+    reward, info = task.reward()
+    assert reward == pytest.approx(0.0) and info["goal_steps_left"] == 3
+    _move(env, b, (0.6, -0.2))  # the second's: still nothing
+    assert task.reward()[0] == pytest.approx(0.0)
+    _move(env, a, (0.6, 0.2))  # all three placed: this action banks the first step only
+    reward, info = task.reward()
+    assert reward == pytest.approx(1 / 3) and info["goal_steps_left"] == 2 and not task.done()
+    reward, info = task.reward()  # the next action banks the second, already met
+    assert reward == pytest.approx(1 / 3) and info["goal_steps_left"] == 1
+    reward, info = task.reward()
+    assert reward == pytest.approx(1 / 3) and info["total_reward"] == pytest.approx(1.0) and task.done()
+
+
 def test_symmetric_yaw_and_rotation_flag(env):
     env.reset(0)
     task = env.task
