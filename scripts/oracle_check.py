@@ -3,9 +3,14 @@
 Usage: python scripts/oracle_check.py --task place-red-in-green --episodes 100 [--mode train] [--workers 2]
        python scripts/oracle_check.py --task towers-of-hanoi --seeds 14 28   (re-run chosen seeds)
        python scripts/oracle_check.py --task palletizing-boxes --episodes 100 --record-dir docs/oracle
+       python scripts/oracle_check.py --blind --task align-rope --mode test --record-dir docs/oracle/blind
 Episodes run in the evaluation engine (``cliport.evaluation.engine``): the oracle inside each worker
 process, one environment per worker, the same rollout loop as demonstration generation.
 Success = total reward > 0.99. A task group name (e.g. multi-ravens) prints one line per task.
+
+With ``--blind`` the language-blind expert plays instead (``Task.blind_plan``: the oracle's skill, but goals
+guessed from the scene without reading the instruction); its mean reward is the task's language-blind ceiling
+(docs/results/blind-ceilings.md).
 
 With ``--record-dir DIR`` every finished seed is appended to ``DIR/TASK.jsonl`` as one JSON line the
 moment it is done, and seeds already there (same mode and camera scale) are not run again: an interrupted check
@@ -29,7 +34,7 @@ from cliport import __version__, tasks
 from cliport.data.seeds import episode_seeds
 from cliport.env.environment import EnvConfig
 from cliport.errors import ConfigError
-from cliport.evaluation.engine import ORACLE, EvalEngine, resolve_workers
+from cliport.evaluation.engine import BLIND, ORACLE, EvalEngine, resolve_workers
 
 
 def _commit() -> str | None:
@@ -56,15 +61,19 @@ def iter_records(path: str) -> Iterator[dict]:
                 continue
 
 
-def read_records(path: str, task_name: str, mode: str, camera_scale: float) -> dict[int, dict]:
-    """Recorded per-seed results of one task, mode and camera scale in a JSON-lines file, by seed
-    (the newest record of a seed wins; a seed on a torn line is simply run again)."""
+def read_records(path: str, task_name: str, mode: str, camera_scale: float, policy: str = ORACLE) -> dict[int, dict]:
+    """Recorded per-seed results of one task, mode, camera scale and expert (records without a ``policy`` are
+    the oracle's) in a JSON-lines file, by seed (the newest record of a seed wins; a seed on a torn line is
+    simply run again)."""
     if not os.path.exists(path):
         return {}
     return {
         int(r["seed"]): r
         for r in iter_records(path)
-        if r.get("task") == task_name and r.get("mode") == mode and r.get("camera_scale") == camera_scale
+        if r.get("task") == task_name
+        and r.get("mode") == mode
+        and r.get("camera_scale") == camera_scale
+        and r.get("policy", ORACLE) == policy
     }
 
 
@@ -77,8 +86,10 @@ def check(
     workers: int | None = 1,
     seeds: list[int] | None = None,
     record: str | None = None,
+    policy: str = ORACLE,
 ) -> dict:
-    """Oracle statistics of ``task_name`` over the first ``episodes`` protocol seeds of ``mode`` (or ``seeds``).
+    """Statistics of ``task_name``'s scripted expert (``policy``: ``ORACLE``, or ``BLIND`` for the language-blind
+    one) over the first ``episodes`` protocol seeds of ``mode`` (or ``seeds``).
 
     With ``record``, results are appended to that JSON-lines file as they finish and protocol seeds
     already recorded there are taken from it instead of being run (chosen ``seeds`` always run).
@@ -89,7 +100,7 @@ def check(
     seeds = seeds if seeds is not None else episode_seeds(mode, episodes)
     done: dict[int, dict] = {}
     if record is not None and not chosen:
-        recorded = read_records(record, task_name, mode, camera_scale)
+        recorded = read_records(record, task_name, mode, camera_scale, policy)
         done = {s: recorded[s] for s in seeds if s in recorded}
     todo = [s for s in seeds if s not in done]
     sink = None
@@ -104,6 +115,8 @@ def check(
         if torn:  # start our lines on a fresh one
             sink.write("\n")
     meta = {"task": task_name, "mode": mode, "camera_scale": camera_scale, "cliport_version": __version__}
+    if policy != ORACLE:
+        meta["policy"] = policy
     if sink is not None:
         meta["commit"] = _commit()
     unwritten = list(todo)  # records are appended in seed order, each once every earlier seed has finished
@@ -126,7 +139,7 @@ def check(
             n_workers = resolve_workers(None if workers is None else min(workers, len(todo)), len(todo))
             config = EnvConfig.defaults(camera_scale=camera_scale)
             with EvalEngine(task_name, mode, config, n_workers, progress, task_name) as engine:
-                engine.run(ORACLE, todo, on_result=finished)
+                engine.run(policy, todo, on_result=finished)
     finally:
         if sink is not None:
             sink.close()
@@ -134,6 +147,7 @@ def check(
     failures = [{"seed": r["seed"], "total_reward": round(r["total_reward"], 3)} for r in results if not r["success"]]
     return {
         "task": task_name,
+        "policy": policy,
         "mode": mode,
         "episodes": len(results),
         "success_rate": sum(r["success"] for r in results) / len(results),
@@ -152,6 +166,9 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, nargs="+", help="run these seeds instead")
     parser.add_argument("--mode", default="train", choices=["train", "val", "test"])
     parser.add_argument("--camera-scale", type=float, default=1.0)
+    parser.add_argument(
+        "--blind", action="store_true", help="the language-blind expert instead of the oracle (its score: the ceiling)"
+    )
     parser.add_argument(
         "--workers", type=int, help="worker processes (one simulator each); default: the usable cores, at most 8"
     )
@@ -173,7 +190,14 @@ def main() -> None:
     for name in names:
         record = None if args.record_dir is None else os.path.join(args.record_dir, f"{name}.jsonl")
         result = check(
-            name, args.episodes, args.mode, args.camera_scale, workers=args.workers, seeds=args.seeds, record=record
+            name,
+            args.episodes,
+            args.mode,
+            args.camera_scale,
+            workers=args.workers,
+            seeds=args.seeds,
+            record=record,
+            policy=BLIND if args.blind else ORACLE,
         )
         print(json.dumps(result), flush=True)
 

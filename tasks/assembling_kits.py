@@ -118,6 +118,7 @@ class AssemblingKitsSeq(KitTask):
         colors = [str(c) for c in rng.permutation(split_colors(self.mode, self.unseen))[:N_OBJECTS]]
         targets = self.build_kit(shape_ids)
         objects = self.add_shapes(shape_ids, colors)
+        self.kit = (objects, shape_ids, targets)
         positions = [np.asarray(t[0]) for t in targets]
         for i in rng.permutation(N_OBJECTS):
             i = int(i)
@@ -135,6 +136,27 @@ class AssemblingKitsSeq(KitTask):
                     ),
                 )
             )
+
+    def blind_plan(self, rng: np.random.Generator) -> list[GoalStep]:
+        """Each object into a hole of its shape, in a random order. Where several objects share a shape, which
+        goes into which of their holes is a random guess (the instruction names it by colour and place)."""
+        objects, shape_ids, targets = self.kit
+        hole_of = list(range(N_OBJECTS))
+        for shape in set(shape_ids):
+            same = [i for i in range(N_OBJECTS) if shape_ids[i] == shape]
+            for i, j in zip(same, rng.permutation(same), strict=True):
+                hole_of[i] = int(j)
+        return [
+            GoalStep(
+                objects=[objects[i]],
+                matches=np.ones((1, 1)),
+                targets=[targets[hole_of[i]]],
+                share=1.0 / N_OBJECTS,
+                symmetries=[SHAPES[shape_ids[i]].symmetry],
+                rotations=True,
+            )
+            for i in map(int, rng.permutation(N_OBJECTS))
+        ]
 
 
 @register("assembling-kits-seq-seen-colors")

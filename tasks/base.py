@@ -106,6 +106,7 @@ class Task:
         self.goals = []
         self.progress = 0.0
         self._last_total = 0.0
+        self._pursued: GoalStep | None = None
 
     def random_pose(self, size: tuple[float, float, float], margin: float = 0.0, yaw: bool = True) -> Pose | None:
         """A free pose on the table for an object of footprint ``size``, or None when the table is full.
@@ -278,6 +279,51 @@ class Task:
                 continue
             return {"pose0": pick, "pose1": self.place_pose(step, i, j, pick)}
         return None
+
+    # ------------------------------------------------------------------ blind expert
+    def blind_plan(self, rng: np.random.Generator) -> list[GoalStep] | None:
+        """The goal steps that an expert who sees the scene but never reads the instruction pursues, in its
+        order; None where the instruction does not change what must be done (that expert is the oracle).
+
+        Called once per episode, right after ``reset``. ``rng`` makes the guesses (seeded per episode,
+        apart from the task's own generator): a task whose steps come in a random order, or whose
+        instruction names one of several things the scene holds, returns every candidate step that the
+        scene leaves possible, shuffled; where the task's rules force an order, it keeps that order. What
+        each task returns, and why no blind agent can do better, is in docs/results/blind-ceilings.md.
+        """
+        return None
+
+    def step_met(self, step: GoalStep) -> bool:
+        """Whether ``step``'s reward is within the completion tolerance of its share in the current state."""
+        return self.step_reward(step) >= step.share - STEP_DONE_TOLERANCE
+
+    def pursue(self, step: GoalStep) -> dict[str, Any] | None:
+        """The oracle's action toward ``step`` from the current state, as if it were the current goal step
+        (the task's goals are left as they were); None when the oracle finds none."""
+        if step is not self._pursued:
+            self.oracle_switch()
+            self._pursued = step
+        goals, self.goals = self.goals, [step]
+        try:
+            return self.oracle_act()
+        finally:
+            self.goals = goals
+
+    def oracle_switch(self) -> None:
+        """Forget oracle state kept for the step it was working on (:meth:`pursue` moved to another step)."""
+
+    def rest_action(self) -> dict[str, Any]:
+        """An action that moves nothing: pick (or push) at the free table spot farthest from every object
+        and put down (or stop) at the same spot. A blind expert with nothing left to do takes it, so that
+        steps it has already met are banked one per action."""
+        height, _ = self.env.oracle_heightmap()
+        free = (height == 0).astype(np.uint8)
+        free[0, :], free[:, 0], free[-1, :], free[:, -1] = 0, 0, 0, 0
+        distance = cv2.distanceTransform(free, cv2.DIST_L2, 5)
+        u, v = np.unravel_index(int(np.argmax(distance)), distance.shape)
+        xyz = hm.pix_to_xyz((int(u), int(v)), 0.0)
+        pose = ((float(xyz[0]), float(xyz[1]), 0.0), (0.0, 0.0, 0.0, 1.0))
+        return {"pose0": pose, "pose1": pose}
 
     def instruction_variants(self, obs: dict | None = None) -> list[tuple[str, dict[str, Any]]]:
         """Every other instruction this scene admits in its current state, each with the oracle's action for it

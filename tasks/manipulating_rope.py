@@ -65,15 +65,19 @@ class RopeTask(Task):
         square = at_height(square)
         square_outline(env, square, SIDE_LENGTH, COLORS["green"], sides=("+x", "-x", "-y"))
         beads = make_rope(env, rope_path(rng, env.bounds), COLORS["red"], COLORS["blue"])
-        self.add_goal(
-            GoalStep(
-                objects=beads,
-                matches=np.eye(N_BEADS),
-                targets=side_targets(square, side),
-                share=1.0,
-                tolerance=TOLERANCE,
-                lang_goal=lang_goal,
-            )
+        self.rope = (square, beads)
+        self.add_goal(self.side_step(side, lang_goal))
+
+    def side_step(self, side: tuple[str, str], lang_goal: str | None = None) -> GoalStep:
+        """The goal step of laying the rope along ``side`` of the square (after :meth:`build`)."""
+        square, beads = self.rope
+        return GoalStep(
+            objects=beads,
+            matches=np.eye(N_BEADS),
+            targets=side_targets(square, side),
+            share=1.0,
+            tolerance=TOLERANCE,
+            lang_goal=lang_goal,
         )
 
     def bead_errors(self, step: GoalStep) -> np.ndarray:
@@ -96,6 +100,9 @@ class RopeTask(Task):
 
     def reset(self, env: Environment, rng: np.random.Generator) -> None:
         super().reset(env, rng)
+        self.oracle_switch()
+
+    def oracle_switch(self) -> None:
         self._oracle_direction: int | None = None
         self._oracle_picks: list[int] = []
 
@@ -178,3 +185,8 @@ class AlignRope(RopeTask):
         super().reset(env, rng)
         side = SIDES[int(rng.integers(len(SIDES)))]
         self.build(env, rng, side, lang_goal=f"align the rope from {side[0]} to {side[1]}")
+
+    def blind_plan(self, rng: np.random.Generator) -> list[GoalStep]:
+        """The four sides in a random order, each laid in full before the next: the instruction's side is drawn
+        uniformly, independently of the scene."""
+        return [self.side_step(SIDES[int(k)]) for k in rng.permutation(len(SIDES))]

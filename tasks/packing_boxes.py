@@ -74,19 +74,29 @@ class PackingBoxesBase(ZoneOracleMixin):
         lang_goal: str | None = None,
         zone_top: float | None = None,
     ) -> None:
-        self.add_goal(
-            GoalStep(
-                objects=boxes,
-                matches=np.eye(len(boxes)),
-                targets=targets,
-                share=1.0,
-                symmetries=[math.pi] * len(boxes),
-                rotations=True,
-                metric="zone",
-                zones=[(zone_pose, (interior[0], interior[1], WALL_HEIGHT))],
-                zone_top=zone_top,
-                lang_goal=lang_goal,
-            )
+        self.add_goal(self.packing_step(boxes, targets, zone_pose, interior, lang_goal, zone_top))
+
+    @staticmethod
+    def packing_step(
+        boxes: list[int],
+        targets: list[Pose],
+        zone_pose: Pose,
+        interior: tuple[float, float],
+        lang_goal: str | None = None,
+        zone_top: float | None = None,
+    ) -> GoalStep:
+        """The goal step of packing ``boxes`` (box i aimed at ``targets[i]``) into the container."""
+        return GoalStep(
+            objects=boxes,
+            matches=np.eye(len(boxes)),
+            targets=targets,
+            share=1.0,
+            symmetries=[math.pi] * len(boxes),
+            rotations=True,
+            metric="zone",
+            zones=[(zone_pose, (interior[0], interior[1], WALL_HEIGHT))],
+            zone_top=zone_top,
+            lang_goal=lang_goal,
         )
 
 
@@ -126,17 +136,37 @@ class PackingBoxesPairs(PackingBoxesBase):
         pair = [names[int(k)] for k in pick]
         others = [c for c in names if c not in pair]
         boxes, targets = [], []
+        self.box_colors: list[tuple[str, int, Pose]] = []  # (colour, body, target of its size) of every box
         for k, (target, size) in enumerate(cells):
             color = pair[k] if k < 2 else pair[int(rng.integers(2))]  # both colours always present
             body = self.scatter_box(env, size, COLORS[color])
             if body is not None:
                 boxes.append(body)
                 targets.append(target)
+                self.box_colors.append((color, body, target))
         for _ in range(self.n_distractors):
-            _, size = cells[int(rng.integers(len(cells)))]
-            self.scatter_box(env, size, COLORS[others[int(rng.integers(len(others)))]])
+            target, size = cells[int(rng.integers(len(cells)))]
+            color = others[int(rng.integers(len(others)))]
+            body = self.scatter_box(env, size, COLORS[color])
+            if body is not None:
+                self.box_colors.append((color, body, target))
+        self.container = (zone_pose, interior)
         lang = f"pack all the {pair[0]} and {pair[1]} blocks into the brown box"
         self.add_packing_goal(boxes, targets, zone_pose, interior, lang_goal=lang, zone_top=PAIRS_ZONE_TOP)
+
+    def blind_plan(self, rng: np.random.Generator) -> list[GoalStep]:
+        """Every pair of the box colours in the scene, in a random order, the boxes of each pair packed (each
+        aimed at the cell of its size) before the next pair: the named colours are drawn independently of the
+        scene, and distractor boxes take their sizes from the container's cells."""
+        colors = sorted({color for color, _, _ in self.box_colors})
+        pairs = [(a, b) for i, a in enumerate(colors) for b in colors[i + 1 :]]
+        zone_pose, interior = self.container
+        plan = []
+        for k in rng.permutation(len(pairs)):
+            chosen = [(body, target) for color, body, target in self.box_colors if color in pairs[int(k)]]
+            boxes, targets = [body for body, _ in chosen], [target for _, target in chosen]
+            plan.append(self.packing_step(boxes, targets, zone_pose, interior, zone_top=PAIRS_ZONE_TOP))
+        return plan
 
 
 @register("packing-boxes-pairs-seen-colors")

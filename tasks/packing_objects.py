@@ -6,8 +6,8 @@ object's target is its cell's centre; the zone metric counts the object's box in
 
 - "-seq": distinct objects, one per cell; some of them (at least one, not all) are packed one per
   goal step, "pack the {object} in the brown box"; the others are distractors.
-- "-group": several copies of one object and distractors of other kinds; one goal step,
-  "pack all the {object} objects in the brown box".
+- "-group": two or three copies of one object, as many of another kind, and one or two single objects of
+  other kinds, as the reference builds it; one goal step, "pack all the {object} objects in the brown box".
 Seen variants use seen objects in every mode; unseen variants use unseen objects in val/test.
 """
 
@@ -82,7 +82,7 @@ class PackingObjects(ZoneOracleMixin):
             return self.half_extents[body]
         return super().object_half_extents(body)
 
-    def zone_step(self, objects: list[int], targets: list, share: float, lang: str) -> GoalStep:
+    def zone_step(self, objects: list[int], targets: list, share: float, lang: str | None = None) -> GoalStep:
         return GoalStep(
             objects=objects,
             matches=np.ones((len(objects), len(targets))),
@@ -105,6 +105,7 @@ class PackingObjectsSeq(PackingObjects):
         for spec in chosen:
             body = self.spawn(env, spec)
             bodies.append(body)
+        self.packable = [(body, k) for k, body in enumerate(bodies) if body is not None]
         steps = []
         for k in range(n_pack):
             body = bodies[k]
@@ -116,20 +117,40 @@ class PackingObjectsSeq(PackingObjects):
             self.add_goal(self.zone_step([body], [target], 1.0 / len(steps), lang))
         self.max_steps = len(steps) + 1
 
+    def blind_plan(self, rng: np.random.Generator) -> list[GoalStep]:
+        """Every object on the table, one per step, in a random order: the objects are distinct kinds drawn at
+        random, and which of them the instructions name (and how many) is drawn independently of the scene."""
+        order = rng.permutation(len(self.packable))
+        return [self.zone_step([body], [self.target(k, body)], 1.0) for body, k in (self.packable[i] for i in order)]
+
 
 class PackingObjectsGroup(PackingObjects):
+    """As the reference builds it: two or three copies of the named kind, as many copies of one other kind,
+    and one or two single objects of other kinds."""
+
     def build_goals(self, env: Environment, rng: np.random.Generator) -> None:
-        target_spec = self.specs[int(rng.integers(len(self.specs)))]
+        kinds = [self.specs[int(k)] for k in rng.permutation(len(self.specs))]
         n_copies = int(rng.integers(2, min(len(self.cells), 3) + 1)) if len(self.cells) > 1 else 1
-        others = [s for s in self.specs if s.name != target_spec.name]
-        n_distractors = int(rng.integers(2, 4))
-        copies = [b for b in (self.spawn(env, target_spec) for _ in range(n_copies)) if b is not None]
-        for k in rng.choice(len(others), min(n_distractors, len(others)), replace=False):
-            self.spawn(env, others[int(k)])
+        n_singles = int(rng.integers(1, 3))
+        self.groups: list[list[int]] = []
+        for k, spec in enumerate(kinds[: 2 + n_singles]):
+            bodies = [self.spawn(env, spec) for _ in range(n_copies if k < 2 else 1)]
+            self.groups.append([b for b in bodies if b is not None])
+        copies = self.groups[0]
         targets = [self.target(k, b) for k, b in enumerate(copies)]
-        lang = f"pack all the {target_spec.name} objects in the brown box"
+        lang = f"pack all the {kinds[0].name} objects in the brown box"
         self.add_goal(self.zone_step(copies, targets, 1.0, lang))
         self.max_steps = len(copies) + 1
+
+    def blind_plan(self, rng: np.random.Generator) -> list[GoalStep]:
+        """The two repeated kinds (the named one and its twin distractor kind) in a random order, all copies of
+        one packed before the other's: the scene shows both repeated alike, so which one the instruction
+        names is a coin flip."""
+        candidates = [group for group in self.groups[:2] if group]
+        return [
+            self.zone_step(group, [self.target(k % len(self.cells), b) for k, b in enumerate(group)], 1.0)
+            for group in (candidates[int(k)] for k in rng.permutation(len(candidates)))
+        ]
 
 
 @register("packing-seen-objects-seq")

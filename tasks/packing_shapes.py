@@ -54,16 +54,26 @@ class PackingShapes(ShapeTask):
         box = shapes.compound(env.client, env.asset_dir, container_parts(inner), zone_pose, color=COLORS["brown"])
         env.add_object(box, "fixed")
         objects = self.add_shapes(shape_ids, colors)
-        self.add_goal(
-            GoalStep(
-                objects=[objects[0]],
-                matches=np.ones((1, 1)),
-                targets=[zone_pose],
-                share=1.0,
-                symmetries=[SHAPES[shape_ids[0]].symmetry],
-                rotations=True,
-                metric="zone",
-                zones=[(zone_pose, (inner[0], inner[1], WALL_HEIGHT))],
-                lang_goal=self.template.format(shape=SHAPES[shape_ids[0]].label),
-            )
+        self.box = (zone_pose, inner)
+        self.add_goal(self.pack_step(objects[0], self.template.format(shape=SHAPES[shape_ids[0]].label)))
+
+    def pack_step(self, body: int, lang_goal: str | None = None) -> GoalStep:
+        """The goal step of packing the shape ``body`` into the box (after ``reset``)."""
+        zone_pose, inner = self.box
+        return GoalStep(
+            objects=[body],
+            matches=np.ones((1, 1)),
+            targets=[zone_pose],
+            share=1.0,
+            symmetries=[SHAPES[self.object_shapes[body]].symmetry],
+            rotations=True,
+            metric="zone",
+            zones=[(zone_pose, (inner[0], inner[1], WALL_HEIGHT))],
+            lang_goal=lang_goal,
         )
+
+    def blind_plan(self, rng: np.random.Generator) -> list[GoalStep]:
+        """The five shapes in a random order: the named one is the first drawn of five distinct shapes in
+        random colours at random places, so nothing in the scene tells it apart (one action is allowed)."""
+        bodies = list(self.object_shapes)
+        return [self.pack_step(bodies[int(k)]) for k in rng.permutation(len(bodies))]

@@ -39,42 +39,60 @@ class _PutBlockInBowl(Task):
         n_blocks = int(rng.integers(1, n_bowls + 1))
         pick, place = (palette[int(k)] for k in rng.permutation(len(palette))[:2])
         bowl_poses = []
+        self.colors_seen: dict[str, list] = {"blocks": [], "bowls": []}  # (colour, body or pose) of each
         for _ in range(n_bowls):
             pose = self.random_pose(BOWL, margin=0.01)
             assert pose is not None, "three bowls always fit on an empty table"
             pose = at_height(pose)
             env.add_object(shapes.bowl(env.client, env.asset_dir, pose, COLORS[place]), "fixed")
             bowl_poses.append(pose)
+            self.colors_seen["bowls"].append((place, pose))
         blocks = []
         for _ in range(n_blocks):
             pose = self.random_pose(BLOCK)
             assert pose is not None, "the target blocks always fit beside the bowls"
             blocks.append(env.add_object(shapes.box(env.client, BLOCK, pose, COLORS[pick])))
+            self.colors_seen["blocks"].append((pick, blocks[-1]))
         others = [c for c in palette if c not in (pick, place)]
         for k in range(N_DISTRACTORS):
             is_block = rng.random() > 0.5
             pose = self.random_pose(BLOCK if is_block else BOWL, margin=0.01)
             if pose is None:
                 continue
-            color = COLORS[others[k % len(others)]]
+            name = others[k % len(others)]
             if is_block:
-                env.add_object(shapes.box(env.client, BLOCK, pose, color))
+                body = env.add_object(shapes.box(env.client, BLOCK, pose, COLORS[name]))
+                self.colors_seen["blocks"].append((name, body))
             else:
                 pose = at_height(pose)
-                env.add_object(shapes.bowl(env.client, env.asset_dir, pose, color), "fixed")
+                env.add_object(shapes.bowl(env.client, env.asset_dir, pose, COLORS[name]), "fixed")
+                self.colors_seen["bowls"].append((name, pose))
         self.max_steps = n_blocks + 1
-        self.add_goal(
-            GoalStep(
-                objects=blocks,
-                matches=np.ones((n_blocks, n_bowls)),
-                targets=bowl_poses,
-                share=1.0,
-                symmetries=[0.0] * n_blocks,
-                rotations=True,
-                tolerance=BOWL_TOLERANCE,
-                lang_goal=f"put the {pick} blocks in a {place} bowl",
-            )
+        self.add_goal(self.colors_step(pick, place, f"put the {pick} blocks in a {place} bowl"))
+
+    def colors_step(self, pick: str, place: str, lang_goal: str | None = None) -> GoalStep:
+        """The goal step of putting every block of colour ``pick`` in a different bowl of colour ``place``."""
+        blocks = [body for name, body in self.colors_seen["blocks"] if name == pick]
+        bowls = [pose for name, pose in self.colors_seen["bowls"] if name == place]
+        return GoalStep(
+            objects=blocks,
+            matches=np.ones((len(blocks), len(bowls))),
+            targets=bowls,
+            share=1.0,
+            symmetries=[0.0] * len(blocks),
+            rotations=True,
+            tolerance=BOWL_TOLERANCE,
+            lang_goal=lang_goal,
         )
+
+    def blind_plan(self, rng: np.random.Generator) -> list[GoalStep]:
+        """Every (block colour, bowl colour) pair the scene leaves possible, in a random order, each done in full
+        before the next. Possible: the named block colour is never a bowl's and the named bowl colour never a
+        block's (distractors take the other colours), so a colour seen on both is ruled out."""
+        blocks = {name for name, _ in self.colors_seen["blocks"]}
+        bowls = {name for name, _ in self.colors_seen["bowls"]}
+        pairs = sorted((pick, place) for pick in blocks - bowls for place in bowls - blocks)
+        return [self.colors_step(*pairs[int(k)]) for k in rng.permutation(len(pairs))]
 
 
 @register("put-block-in-bowl-seen-colors")

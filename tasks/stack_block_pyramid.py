@@ -88,6 +88,7 @@ class _StackBlockPyramidSeq(_PyramidScene):
         palette = split_colors(self.mode, self.unseen)
         names = [palette[int(k)] for k in rng.permutation(len(palette))[:6]]
         blocks, targets = self.build(env, names)
+        self.pyramid = (blocks, targets)
         places = [
             "the lightest brown block",
             "the middle brown block",
@@ -108,6 +109,23 @@ class _StackBlockPyramidSeq(_PyramidScene):
                     lang_goal=f"put the {name} block on {place}",
                 )
             )
+
+    def blind_plan(self, rng: np.random.Generator) -> list[GoalStep]:
+        """The six places in the order the task always names them (bottom row lightest to darkest tile, then
+        the middle row, then the top, as stacking forces), each with a block guessed at random: which colour
+        goes where is the instruction's, drawn independently of the scene."""
+        blocks, targets = self.pyramid
+        return [
+            GoalStep(
+                objects=[blocks[int(k)]],
+                matches=np.ones((1, 1)),
+                targets=[target],
+                share=1 / 6,
+                symmetries=[BLOCK_SYMMETRY],
+                rotations=True,
+            )
+            for k, target in zip(rng.permutation(len(blocks)), targets, strict=True)
+        ]
 
 
 @register("stack-block-pyramid-seq-seen-colors")

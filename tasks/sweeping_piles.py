@@ -194,17 +194,30 @@ class SeparatingPiles(PileTask):
         square_outline(env, zones[0], SQUARE[0], COLORS[target_color])
         square_outline(env, zones[1], SQUARE[0], COLORS[other_color])
         cubes = add_pile(self, (0.5, 0.0), 0.2, COLORS[block_color])
+        self.squares = (cubes, zones)
         self.add_goal(
-            GoalStep(
-                objects=cubes,
-                matches=np.ones((len(cubes), 1)),
-                targets=[zones[0]],
-                share=1.0,
-                metric="zone",
-                zones=[(zones[0], SQUARE)],
-                lang_goal=f"push the pile of {block_color} blocks into the {target_color} square",
-            )
+            self.square_step(zones[0], f"push the pile of {block_color} blocks into the {target_color} square")
         )
+
+    def square_step(self, zone: Pose, lang_goal: str | None = None) -> GoalStep:
+        """The goal step of pushing the whole pile into the square at ``zone`` (after ``reset``)."""
+        cubes, _ = self.squares
+        return GoalStep(
+            objects=cubes,
+            matches=np.ones((len(cubes), 1)),
+            targets=[zone],
+            share=1.0,
+            metric="zone",
+            zones=[(zone, SQUARE)],
+            lang_goal=lang_goal,
+        )
+
+    def blind_plan(self, rng: np.random.Generator) -> list[GoalStep]:
+        """Both squares in a random order, the pile pushed into one, then into the other while the episode
+        lasts: which square the instruction names is drawn independently of the scene (the pile is one
+        colour, the two squares' colours are both random)."""
+        _, zones = self.squares
+        return [self.square_step(zones[int(k)]) for k in rng.permutation(len(zones))]
 
 
 @register("separating-piles-seen-colors")

@@ -99,6 +99,11 @@ class _TowersOfHanoiSeq(_TowersScene):
     def move_text(self, color: str, rod: int) -> str | None:
         return f"move the {color} ring to the {ROD_NAMES[rod]}"
 
+    def blind_plan(self, rng: np.random.Generator) -> list[GoalStep]:
+        """The instructions' own moves in their order: the puzzle's rules force the optimal solution's order,
+        whatever colours the instructions name, so a blind expert makes the same moves as the oracle."""
+        return list(self.goals)
+
 
 @register("towers-of-hanoi-seq-seen-colors")
 class TowersOfHanoiSeqSeenColors(_TowersOfHanoiSeq):

@@ -7,6 +7,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol, runtime_checkable
 
+import numpy as np
+
 from cliport.env.environment import Environment
 
 Policy = Callable[[dict[str, Any], dict[str, Any]], "dict[str, Any] | None"]
@@ -40,14 +42,67 @@ def oracle_policy(env: Environment) -> Policy:
     return act
 
 
+#: Mixed with the episode seed to seed a blind expert's guesses (apart from the task's own generator).
+BLIND_SEED = 20211108
+
+
+def blind_policy(env: Environment, seed: int) -> Policy:
+    """The language-blind expert of :meth:`Task.blind_plan` as a policy, its guesses seeded by ``seed``.
+
+    At each action it works on the first step of its plan, from where it is, that it has not met yet, with
+    the oracle's action for that step (a later step where the oracle finds none); once it has met its whole
+    plan it rests (:meth:`Task.rest_action`), so that the goal steps it has met are banked, one per action.
+    Where the task has no blind plan (the instruction does not change what must be done) it is the oracle.
+    """
+    task = _task_of(env)
+    plan: list[Any] | None = None
+    planned = False
+    position = 0
+
+    def act(obs: dict[str, Any], info: dict[str, Any]) -> dict[str, Any] | None:
+        nonlocal plan, planned, position
+        if not planned:
+            plan, planned = task.blind_plan(np.random.default_rng([BLIND_SEED, seed])), True
+        if plan is None:
+            return task.oracle_act(obs)
+        while position < len(plan) and task.step_met(plan[position]):
+            position += 1
+        for step in plan[position:]:
+            if not task.step_met(step):
+                action = task.pursue(step)
+                if action is not None:
+                    return action
+        return task.rest_action()
+
+    return act
+
+
+def scripted_policy(env: Environment, name: str, seed: int) -> Policy:
+    """The scripted expert named ``name``: "oracle" (:func:`oracle_policy`) or "blind" (:func:`blind_policy`)."""
+    if name == "oracle":
+        return oracle_policy(env)
+    if name == "blind":
+        return blind_policy(env, seed)
+    raise ValueError(f"unknown scripted expert {name!r}: 'oracle' or 'blind'")
+
+
 @runtime_checkable
 class ExpertTask(Protocol):
     """What demonstrations need of a task beyond the environment's :class:`~cliport.env.environment.Task`: its
-    scripted expert and, for ``variants``, the scene's other instructions (``cliport.tasks.base.Task`` has both)."""
+    scripted expert, for ``variants`` the scene's other instructions, and the language-blind expert's parts
+    (``cliport.tasks.base.Task`` has them all)."""
 
     def oracle_act(self, obs: dict[str, Any] | None = None) -> dict[str, Any] | None: ...
 
     def instruction_variants(self, obs: dict[str, Any] | None = None) -> list[tuple[str, dict[str, Any]]]: ...
+
+    def blind_plan(self, rng: np.random.Generator) -> list[Any] | None: ...
+
+    def step_met(self, step: Any) -> bool: ...
+
+    def pursue(self, step: Any) -> dict[str, Any] | None: ...
+
+    def rest_action(self) -> dict[str, Any]: ...
 
 
 def _task_of(env: Environment) -> ExpertTask:

@@ -5,7 +5,7 @@ its episodes here. Each worker process owns one :class:`~cliport.env.environment
 task and steps one episode at a time. An agent stays in the calling process on its device: whenever
 episodes wait for an action, their observations go to one ``agent.act_batch(...)`` call, so memory on
 the agent's device does not grow with the number of workers. The scripted oracle needs the simulator's
-state, so with ``ORACLE`` the workers run whole episodes themselves.
+state, so with ``ORACLE`` (or ``BLIND``, the language-blind expert) the workers run whole episodes themselves.
 
 Workers are started with the spawn context and never import torch; they get only picklable settings
 (task name, mode, workcell config) and send back numpy observations, the instruction and per-episode
@@ -37,6 +37,9 @@ from cliport.evaluation.workers import Worker, WorkerError, WorkerPool
 
 #: Pass as the policy to run the task's scripted expert inside the workers.
 ORACLE = "oracle"
+#: Pass as the policy to run the task's language-blind expert (``Task.blind_plan``) inside the workers.
+BLIND = "blind"
+SCRIPTED = (ORACLE, BLIND)
 #: Default worker count: the usable cores, at most this many.
 MAX_DEFAULT_WORKERS = 8
 #: Seconds a worker may take to answer one message (start an episode, or do one action) before it is
@@ -64,7 +67,7 @@ def resolve_workers(workers: int | None, n_episodes: int, flag: str = "--workers
     return workers
 
 
-Policy = Any  # an agent with act_batch(observations, instructions), or ORACLE
+Policy = Any  # an agent with act_batch(observations, instructions), ORACLE or BLIND
 
 
 class EvalEngine:
@@ -134,13 +137,14 @@ class EvalEngine:
         video_fps: int = 20,
         on_result: Callable[[dict[str, Any]], None] | None = None,
     ) -> list[dict[str, Any]]:
-        """Play one episode per seed with ``policy`` (an agent, or :data:`ORACLE`); rows in seed order.
+        """Play one episode per seed with ``policy`` (an agent, :data:`ORACLE` or :data:`BLIND`); rows in seed order.
 
         ``on_result`` hears of every finished episode as it finishes (in finishing order).
         """
         oracle = isinstance(policy, str)
-        if oracle and policy != ORACLE:
-            raise ValueError(f"policy must be an agent or {ORACLE!r}, got {policy!r}")
+        if oracle and policy not in SCRIPTED:
+            raise ValueError(f"policy must be an agent, {ORACLE!r} or {BLIND!r}, got {policy!r}")
+        scripted = policy if oracle else ""
         if len(set(seeds)) != len(seeds):
             raise ValueError("seeds must be distinct")
         self.start()
@@ -163,7 +167,7 @@ class EvalEngine:
                     if worker.ready and worker.seed is None and todo:
                         worker.seed = todo.popleft()
                         first_start = first_start or time.perf_counter()
-                        start_message = ("start", worker.seed, oracle, video_path(worker.seed), video_fps)
+                        start_message = ("start", worker.seed, scripted, video_path(worker.seed), video_fps)
                         worker.send(start_message, pool.timeout(oracle, worker))
                 busy = [w for w in self.workers if w.seed is not None or not w.ready]
                 waiting: list[tuple[Worker, int, dict[str, Any], str | None]] = []
@@ -209,4 +213,4 @@ def _executable(action: dict[str, Any] | None) -> dict[str, Any] | None:
     return {"pose0": action["pose0"], "pose1": action["pose1"]}
 
 
-__all__ = ["DEFAULT_STEP_TIMEOUT", "ORACLE", "EvalEngine", "WorkerError", "resolve_workers", "usable_cores"]
+__all__ = ["BLIND", "DEFAULT_STEP_TIMEOUT", "ORACLE", "EvalEngine", "WorkerError", "resolve_workers", "usable_cores"]

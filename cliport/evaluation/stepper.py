@@ -28,7 +28,7 @@ HANG_ENV = "CLIPORT_TEST_WORKER_HANG"
 @dataclass
 class _Episode:
     seed: int
-    oracle: bool
+    scripted: str  # "oracle" or "blind" when a scripted expert plays the whole episode here, else ""
     video_path: str | None
     video_fps: int
     total_reward: float = 0.0
@@ -39,7 +39,8 @@ class _Episode:
 class EpisodeStepper:
     """One environment with the task; plays episodes one message at a time (see :meth:`handle`).
 
-    Messages: ``("start", seed, oracle, video_path, video_fps)`` and ``("action", action)``; replies:
+    Messages: ``("start", seed, scripted, video_path, video_fps)`` (``scripted``: "oracle", "blind" or "" for an
+    agent's episode) and ``("action", action)``; replies:
     ``("act", seed, observation, lang_goal)`` (an action is wanted) or ``("result", row)`` (the episode
     ended). The loop is :func:`cliport.data.rollout.run_episode`'s, so results match serial runs.
     """
@@ -60,14 +61,14 @@ class EpisodeStepper:
             return self.step(message[1])
         raise ValueError(f"unknown message {message[0]!r}")
 
-    def start(self, seed: int, oracle: bool, video_path: str | None = None, video_fps: int = 20) -> tuple[Any, ...]:
-        self.episode = _Episode(seed, oracle, video_path, video_fps)
+    def start(self, seed: int, scripted: str, video_path: str | None = None, video_fps: int = 20) -> tuple[Any, ...]:
+        self.episode = _Episode(seed, scripted, video_path, video_fps)
         if video_path is not None:
             self.env.start_recording()
-        if oracle:
-            from cliport.data.rollout import oracle_policy, run_episode
+        if scripted:
+            from cliport.data.rollout import run_episode, scripted_policy
 
-            played = run_episode(self.env, seed, oracle_policy(self.env))
+            played = run_episode(self.env, seed, scripted_policy(self.env, scripted, seed))
             self.episode.total_reward, self.episode.actions = played.total_reward, played.n_actions
             self._maybe_crash()
             return self._finish()
@@ -77,7 +78,7 @@ class EpisodeStepper:
 
     def step(self, action: dict[str, Any] | None) -> tuple[Any, ...]:
         episode = self.episode
-        if episode is None or episode.oracle:
+        if episode is None or episode.scripted:
             raise RuntimeError("no agent episode is waiting for an action")
         if action is None:
             return self._finish()

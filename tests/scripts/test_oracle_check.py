@@ -75,3 +75,32 @@ def test_record_dir_resumes_and_survives_a_torn_line(tmp_path, one_error_line):
     text = readme.read_text()
     assert text.startswith("before\n") and text.endswith("after\n")
     assert "old" not in text and "| block-insertion" in text
+
+
+def test_blind_records_apart_from_the_oracle_and_its_table(tmp_path, one_error_line):
+    records = tmp_path / "blind"
+    task = "put-block-in-bowl-seen-colors"
+    args = ("--task", task, "--episodes", "2", "--mode", "test", "--camera-scale", "0.5", "--record-dir", str(records))
+    oracle = _run(*args)
+    assert oracle.returncode == 0, oracle.stderr
+    blind = _run("--blind", *args)
+    assert blind.returncode == 0, blind.stderr
+    summary = json.loads(blind.stdout)
+    assert summary["policy"] == "blind" and summary["newly_run"] == 2  # the oracle's records are not the blind's
+    lines = [json.loads(line) for line in (records / f"{task}.jsonl").read_text().splitlines()]
+    assert [r.get("policy", "oracle") for r in lines] == ["oracle", "oracle", "blind", "blind"]
+
+    blind_only = tmp_path / "blind-only"
+    blind_only.mkdir()
+    (blind_only / f"{task}.jsonl").write_text("".join(json.dumps(r) + "\n" for r in lines[2:]))
+    out = tmp_path / "ceilings.json"
+    shown = _table("--blind", "--dir", str(blind_only), "--json", str(out))
+    assert shown.returncode == 0, shown.stderr
+    row = [line for line in shown.stdout.splitlines() if line.startswith(f"| {task}")]
+    assert len(row) == 1 and "| 62.7 | 64.7 |" in row[0]  # CLIPort's Transporter-only, 100 and 1000 demos
+    ceiling = json.loads(out.read_text())["tasks"][task]
+    expected = 100 * sum(r["total_reward"] for r in lines[2:]) / 2
+    assert ceiling["episodes"] == 2 and abs(ceiling["score"] - expected) < 0.06
+    assert ceiling["interval"][0] <= ceiling["score"] <= ceiling["interval"][1]
+    bad = _table("--json", str(out), "--dir", str(blind_only))
+    one_error_line(bad.returncode, bad.stderr, "--json goes with --blind")
