@@ -67,3 +67,31 @@ def test_several_seeds_are_reported_as_mean_and_std(tmp_path):
     assert StudyConfig(task="t", agents=["transporter_only"], n_demos=[1], n_steps=1, out="s", data_dir="d",
                        recipes=["legacy"]).train_config("transporter_only", 1).run_dir == (
         "s/runs/transporter_only-legacy-n1")  # fmt: skip
+
+
+def test_ceiling_column_pairs_side_by_side_and_their_plot(tmp_path, monkeypatch):
+    from cliport.evaluation import published
+    from cliport.study import combined_table, report
+
+    ceilings = {"assembling-kits-seq-seen-colors": {"score": 47.9, "interval": [43.0, 52.8], "episodes": 100}}
+    monkeypatch.setattr(published, "blind_ceilings", lambda: ceilings)
+    val = {"checkpoints": {}, "best_step": None}
+    plain = summarise_run("assembling-kits", "transporter_only", 100, {"1000": 40.0, "5000": 80.0}, val, "ravens")
+    seq = summarise_run("assembling-kits-seq-seen-colors", "transporter_only", 100, {"1000": 30.0}, val, "ravens")
+    both = [
+        {"task": "assembling-kits", "n_steps": 5000, "seeds": [0], "runs": [plain]},
+        {"task": "assembling-kits-seq-seen-colors", "n_steps": 5000, "seeds": [0], "runs": [seq]},
+    ]
+    table = combined_table(both)
+    assert "| assembling-kits | - | 80.0* / 90.4 |" in table  # no instruction, no ceiling
+    assert "| assembling-kits-seq-seen-colors | 47.9 | 30.0* / - |" in table
+    assert (
+        "| transporter_only | ravens | 100 | assembling-kits | 80.0* | assembling-kits-seq-seen-colors | 30.0* | 47.9 |"
+        in (table)
+    )
+    assert "Language-blind ceiling: 47.9 [43.0-52.8] (100 test episodes" in markdown_table(both[1])
+    assert "Language-blind ceiling" not in markdown_table(both[0])
+    assert report.task_pairs(["assembling-kits-seq-seen-colors", "towers-of-hanoi"]) == []
+    path = tmp_path / "pairs.png"
+    assert report.plot_pairs(both, str(path)) and path.stat().st_size > 10000
+    assert not report.plot_pairs(both[:1], str(tmp_path / "none.png")) and not (tmp_path / "none.png").exists()

@@ -1,4 +1,5 @@
-"""Look up the papers' published scores for our agents and task names."""
+"""Look up the papers' published scores for our agents and task names, the measured language-blind ceilings of
+the instruction-following tasks, and which plain task each sequenced one is built on."""
 
 from __future__ import annotations
 
@@ -39,6 +40,39 @@ def published_results() -> dict[str, Any]:
     """The published tables (see the file's ``_about``)."""
     text = resources.files("cliport.reference").joinpath("published_results.json").read_text()
     return json.loads(text)
+
+
+#: CLIPort's instruction-following tasks and the plain Ravens task each is built on: reported side by side.
+PLAIN_TASKS = {
+    "assembling-kits-seq-seen-colors": "assembling-kits",
+    "assembling-kits-seq-unseen-colors": "assembling-kits",
+    "stack-block-pyramid-seq-seen-colors": "stack-block-pyramid",
+    "stack-block-pyramid-seq-unseen-colors": "stack-block-pyramid",
+    "towers-of-hanoi-seq-seen-colors": "towers-of-hanoi",
+    "towers-of-hanoi-seq-unseen-colors": "towers-of-hanoi",
+    "packing-boxes-pairs-seen-colors": "packing-boxes",
+    "packing-boxes-pairs-unseen-colors": "packing-boxes",
+    "separating-piles-seen-colors": "sweeping-piles",
+    "separating-piles-unseen-colors": "sweeping-piles",
+    "align-rope": "manipulating-rope",
+}
+
+
+@cache
+def blind_ceilings() -> dict[str, dict[str, Any]]:
+    """Per task, the measured language-blind ceiling: ``score`` (mean total reward x100 of the expert that never
+    reads the instruction), ``interval`` (95%), ``episodes``, ``solved``; empty where none is packaged
+    (``cliport/reference/blind_ceilings.json``, written by ``scripts/oracle_table.py --blind --json``)."""
+    path = resources.files("cliport.reference").joinpath("blind_ceilings.json")
+    if not path.is_file():
+        return {}
+    return dict(json.loads(path.read_text())["tasks"])
+
+
+def blind_ceiling(task: str) -> dict[str, Any] | None:
+    """:func:`blind_ceilings` of ``task``, or None (a task whose instruction does not change what must be done,
+    or one not measured)."""
+    return blind_ceilings().get(task)
 
 
 #: The training recipe (configs/recipes.toml) of the code behind each published table: Transporter Networks

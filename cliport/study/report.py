@@ -3,7 +3,9 @@
 For each cell the report keeps the test score of the checkpoint chosen on validation (CLIPort's protocol), of
 the last checkpoint, and the best test score over checkpoints (the optimistic choice), beside the published
 numbers; the plot shows test success against training steps: how much of the gap between the two papers'
-Transporter numbers comes from training length and checkpoint choice.
+Transporter numbers comes from training length and checkpoint choice. Where a task's instruction changes what must
+be done, its language-blind ceiling (the best score of an agent that ignores the instruction) is shown beside the
+scores, and a plain Ravens task and the sequenced task built on it are reported side by side.
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ import os
 import statistics
 from typing import Any
 
-from cliport.evaluation.published import TABLE_RECIPES, published_scores
+from cliport.evaluation.published import PLAIN_TASKS, TABLE_RECIPES, blind_ceiling, published_scores
 from cliport.utils.files import write_bytes, write_json, write_text
 
 
@@ -93,6 +95,9 @@ def markdown_table(results: dict[str, Any]) -> str:
     seeds = results.get("seeds", [])
     if len(seeds) > 1:
         lines.insert(3, f"Mean ± standard deviation over {len(seeds)} training seeds ({', '.join(map(str, seeds))}).")
+    ceiling = blind_ceiling(results["task"])
+    if ceiling is not None:
+        lines.insert(3, f"{ceiling_text(ceiling)}.\n")
     for r in results["runs"]:
         published = "; ".join(f"{p['score']:.1f} ({p['source']})" for p in r["published"]) or "-"
         selected = fmt(r["test_at_val_selected"], r.get("test_at_val_selected_std"))
@@ -114,6 +119,15 @@ def markdown_table(results: dict[str, Any]) -> str:
         )
         lines.append(f"- {r['agent']} ({r.get('recipe') or '-'}), {r['n_demos']} demos: {cells}")
     return "\n".join(lines) + "\n"
+
+
+def ceiling_text(ceiling: dict[str, Any]) -> str:
+    """One line on a language-blind ceiling, e.g. 'Language-blind ceiling: 47.9 [44.1-51.7] (100 test episodes)'."""
+    low, high = ceiling["interval"]
+    return (
+        f"Language-blind ceiling: {ceiling['score']:.1f} [{low:.1f}-{high:.1f}] ({ceiling['episodes']} test episodes "
+        "of the expert that never reads the instruction; docs/results/blind-ceilings.md)"
+    )
 
 
 def plot_study(results: dict[str, Any], path: str) -> None:
@@ -145,6 +159,9 @@ def plot_study(results: dict[str, Any], path: str) -> None:
             ax.plot([p["training_steps"]], [p["score"]], marker, color=color, markersize=9, fillstyle="none")
             ax.annotate(p["source"].split(",")[0], (p["training_steps"], p["score"]), fontsize=6, color=color,
                         xytext=(4, -3), textcoords="offset points")  # fmt: skip
+    ceiling = blind_ceiling(results["task"])
+    if ceiling is not None:
+        ax.axhline(ceiling["score"], color="0.3", linestyle=":", label="language-blind ceiling")
     ax.set_xscale("log")
     ax.set_xlabel("training steps")
     ax.set_ylabel("test success (mean reward x100)")
@@ -217,16 +234,95 @@ def combined_table(all_results: list[dict[str, Any]]) -> str:
         published = "; ".join(f"{p['score']:.1f}" for p in row["published"]) or "-"
         return f"{ours} / {published}"
 
+    def ceiling(task: str) -> str:
+        found = blind_ceiling(task)
+        return "-" if found is None else f"{found['score']:.1f}"
+
+    lines[-1] += (
+        " The blind ceiling is the best an agent that ignores the instruction can score (- where the instruction "
+        "does not change what must be done; docs/results/blind-ceilings.md)."
+    )
     for (agent, recipe), tasks in blocks.items():
         lines += ["", f"## {agent}, {recipe or '-'} recipe", ""]
-        lines.append("| task | " + " | ".join(f"{n} demo{'s' if n != 1 else ''}" for n in counts) + " |")
-        lines.append("|---|" + "---|" * len(counts))
+        demos = " | ".join(f"{n} demo{'s' if n != 1 else ''}" for n in counts)
+        lines.append(f"| task | blind ceiling | {demos} |")
+        lines.append("|---|---|" + "---|" * len(counts))
         for task, rows in tasks.items():
-            lines.append(f"| {task} | " + " | ".join(fmt(rows.get(n)) for n in counts) + " |")
+            lines.append(f"| {task} | {ceiling(task)} | " + " | ".join(fmt(rows.get(n)) for n in counts) + " |")
+    pairs = task_pairs([r["task"] for r in all_results])
+    if pairs:
+        lines += [
+            "",
+            "## Plain and sequenced tasks side by side",
+            "",
+            "Ours on the plain Ravens task and on the instruction-following task built on it, same agent, recipe",
+            "and demos; the sequenced task's blind ceiling beside them.",
+            "",
+            "| agent | recipe | demos | plain task | plain | sequenced task | sequenced | its blind ceiling |",
+            "|---|---|---|---|---|---|---|---|",
+        ]
+        for plain, seq in pairs:
+            for (agent, recipe), tasks in blocks.items():
+                for n in counts:
+                    a, b = tasks.get(plain, {}).get(n), tasks.get(seq, {}).get(n)
+                    if a is None and b is None:
+                        continue
+                    lines.append(
+                        f"| {agent} | {recipe or '-'} | {n} | {plain} | {fmt(a).split(' / ')[0]} | {seq} "
+                        f"| {fmt(b).split(' / ')[0]} | {ceiling(seq)} |"
+                    )
     return "\n".join(lines) + "\n"
 
 
+def task_pairs(tasks: list[str]) -> list[tuple[str, str]]:
+    """(plain task, sequenced task) for every sequenced task in ``tasks`` whose plain task is there too."""
+    return [(PLAIN_TASKS[t], t) for t in tasks if t in PLAIN_TASKS and PLAIN_TASKS[t] in tasks]
+
+
+def plot_pairs(all_results: list[dict[str, Any]], path: str) -> bool:
+    """Test success against training steps on each plain task and the sequenced task built on it (one panel per
+    pair), every run of both, with the sequenced task's language-blind ceiling as a line. False (nothing
+    written) when no pair was studied."""
+    by_task = {r["task"]: r for r in all_results}
+    pairs = task_pairs(list(by_task))
+    if not pairs:
+        return False
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(pairs), figsize=(7.5 * len(pairs), 4.5), squeeze=False)
+    for ax, (plain, seq) in zip(axes[0], pairs, strict=True):
+        k = 0
+        for task, style in ((plain, "o-"), (seq, "s--")):
+            for r in by_task[task]["runs"]:
+                xs = [c["step"] for c in r["checkpoints"]]
+                ys = [c["test"] for c in r["checkpoints"]]
+                recipe = f", {r['recipe']}" if r.get("recipe") else ""
+                ax.plot(xs, ys, style, color=f"C{k % 10}", label=f"{task}: {r['agent']}{recipe}, {r['n_demos']} demos")
+                k += 1
+        ceiling = blind_ceiling(seq)
+        if ceiling is not None:
+            ax.axhline(ceiling["score"], color="0.3", linestyle=":", label=f"{seq}: language-blind ceiling")
+        ax.set_xscale("log")
+        ax.set_xlabel("training steps")
+        ax.set_ylabel("test success (mean reward x100)")
+        ax.set_ylim(-3, 103)
+        ax.set_title(f"{plain} and {seq}")
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=7, loc="upper left")
+    fig.tight_layout()
+    image = io.BytesIO()
+    fig.savefig(image, format="png", dpi=120)
+    write_bytes(path, image.getvalue())
+    plt.close(fig)
+    return True
+
+
 def write_combined(folder: str, all_results: list[dict[str, Any]]) -> None:
-    """``combined.json`` (every task's results) and ``combined.md`` (:func:`combined_table`), atomically."""
+    """``combined.json`` (every task's results), ``combined.md`` (:func:`combined_table`) and, when a plain task and
+    a sequenced one built on it were studied, ``plain_vs_sequenced.png`` (:func:`plot_pairs`), atomically."""
     write_json(os.path.join(folder, "combined.json"), {"tasks": all_results})
     write_text(os.path.join(folder, "combined.md"), combined_table(all_results))
+    plot_pairs(all_results, os.path.join(folder, "plain_vs_sequenced.png"))
