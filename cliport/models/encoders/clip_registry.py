@@ -5,6 +5,12 @@ The model is any name of ``open_clip.list_models()`` (``--semantic-encoder NAME`
 closest known names; a model whose image tower comes from timm (``ViT-B-16-SigLIP*``, ``convnext_*``,
 ``EVA*``, ``ViTamin*``, ...) raises :class:`UnsupportedEncoderError` before any weights are fetched. Also
 keeps open_clip's log lines quiet (:func:`quiet_open_clip`).
+
+Besides open_clip's own models, cliport ships small CLIP configs in open_clip's JSON format
+(``model_configs/``: ``cliport-RN-tiny``, ``cliport-RN-small``), ResNet and text-transformer CLIPs narrow enough
+to pretrain on a CPU (``cliport-pretrain``). They have no published weights: ``random``, or a file written by
+``cliport-pretrain``. :func:`import_open_clip` registers them with open_clip, so that every name this module
+accepts is one ``open_clip.create_model`` and ``open_clip.get_tokenizer`` know.
 """
 
 from __future__ import annotations
@@ -24,6 +30,8 @@ from cliport.errors import UserError
 
 #: The default model (``--semantic-encoder``): CLIPort's CLIP RN50.
 MODEL_NAME = "RN50-quickgelu"
+#: cliport's own open_clip model configs (one JSON file per model, named by the file), see the module docstring.
+CLIPORT_CONFIG_DIR = Path(__file__).with_name("model_configs")
 _RANDOM_INIT_WARNING = "No pretrained weights loaded for model"
 
 
@@ -42,16 +50,38 @@ def _open_clip_config_dir() -> Path | None:
     return Path(next(iter(spec.submodule_search_locations))) / "model_configs"
 
 
-@functools.cache
-def _builtin_model_configs() -> dict[str, dict[str, Any]]:
-    """open_clip's built-in model configs read straight from its JSON files (no ``import open_clip``: fast)."""
-    config_dir = _open_clip_config_dir()
+def _read_configs(config_dir: Path | None) -> dict[str, dict[str, Any]]:
+    """The model configs in a folder of open_clip JSON files, by file stem (open_clip's criterion for a config)."""
     configs: dict[str, dict[str, Any]] = {}
     for path in sorted(config_dir.glob("*.json")) if config_dir is not None else []:
         cfg = json.loads(path.read_text())
-        if all(k in cfg for k in ("embed_dim", "vision_cfg", "text_cfg")):  # open_clip's own criterion
+        if all(k in cfg for k in ("embed_dim", "vision_cfg", "text_cfg")):
             configs[path.stem] = cfg
     return configs
+
+
+@functools.cache
+def _builtin_model_configs() -> dict[str, dict[str, Any]]:
+    """open_clip's built-in model configs and cliport's (:data:`CLIPORT_CONFIG_DIR`), read straight from their JSON
+    files (no ``import open_clip``: fast)."""
+    return {**_read_configs(_open_clip_config_dir()), **cliport_model_configs()}
+
+
+@functools.cache
+def cliport_model_configs() -> dict[str, dict[str, Any]]:
+    """cliport's own open_clip model configs by name (``cliport-RN-tiny``, ...): :data:`CLIPORT_CONFIG_DIR`."""
+    return _read_configs(CLIPORT_CONFIG_DIR)
+
+
+def import_open_clip() -> Any:
+    """``open_clip``, imported with its log kept quiet, with cliport's model configs registered (once per process):
+    every module here gets open_clip through this function before it builds a model or a tokenizer by name."""
+    with quiet_open_clip():
+        import open_clip
+
+    if not set(cliport_model_configs()) <= set(open_clip.list_models()):
+        open_clip.add_model_config(CLIPORT_CONFIG_DIR)
+    return open_clip
 
 
 def model_config(model_name: str) -> dict[str, Any]:
@@ -63,10 +93,9 @@ def model_config(model_name: str) -> dict[str, Any]:
     import sys
 
     if "open_clip" in sys.modules:
-        from open_clip.factory import get_model_config, list_models
-
-        names = list_models()
-        cfg = get_model_config(model_name) if model_name in names else None
+        open_clip = import_open_clip()  # already imported: this only makes sure cliport's configs are registered
+        names = open_clip.list_models()
+        cfg = open_clip.get_model_config(model_name) if model_name in names else None
     else:
         configs = _builtin_model_configs()
         names = list(configs)
@@ -92,10 +121,8 @@ def check_model_name(model_name: str) -> None:
 
 
 def pretrained_tags(model_name: str) -> list[str]:
-    with quiet_open_clip():
-        import open_clip
-
-    return list(open_clip.list_pretrained_tags_by_model(model_name))
+    """The model's published weight tags (``["openai", "yfcc15m", ...]`` for RN50; none for cliport's configs)."""
+    return list(import_open_clip().list_pretrained_tags_by_model(model_name))
 
 
 class _OpenCLIPLogFilter(logging.Filter):

@@ -17,7 +17,7 @@ from typing import Any
 
 from cliport.errors import UserError
 from cliport.models.encoders import weights
-from cliport.models.encoders.clip_registry import MODEL_NAME, quiet_open_clip
+from cliport.models.encoders.clip_registry import MODEL_NAME, import_open_clip, quiet_open_clip
 
 # The default model reads at most this many tokens of an instruction, start and end tokens included; the
 # tokenizer cuts the rest off without saying so. Other models: FrozenCLIP.context_length.
@@ -31,9 +31,8 @@ class TokenizerUnavailable(UserError, RuntimeError):
 @functools.cache
 def load_tokenizer(model_name: str = MODEL_NAME) -> Any:
     """The model's tokenizer; :class:`TokenizerUnavailable` in one line when it cannot be fetched."""
+    open_clip = import_open_clip()
     with quiet_open_clip():
-        import open_clip
-
         try:
             return open_clip.get_tokenizer(model_name)
         except Exception as err:  # transformers/huggingface_hub raise OSError, ValueError, ... offline

@@ -32,6 +32,7 @@ from cliport.models.encoders import weights
 from cliport.models.encoders.clip_registry import (
     MODEL_NAME,
     check_model_name,
+    import_open_clip,
     model_config,
     pretrained_tags,
     quiet_open_clip,
@@ -116,7 +117,10 @@ def _cached_pretrained_file(model_name: str, tag: str) -> str | None:
 
 
 def published_weights_available(tag: str = "openai", model_name: str = MODEL_NAME) -> bool:
-    """Whether ``tag``'s weights can be had now: in the Hugging Face cache, or the hub answers."""
+    """Whether ``tag``'s weights can be had now: in the Hugging Face cache, or the hub answers (never for a model
+    without that tag, such as cliport's own configs)."""
+    if tag not in pretrained_tags(model_name):
+        return False
     return _cached_pretrained_file(model_name, tag) is not None or _hub_reachable()
 
 
@@ -137,6 +141,23 @@ def _check_architecture(
 ) -> None:
     """CLIPWeightsUnavailable with a short account if ``state`` is not a state dict of ``expected``'s model."""
     weights.check_architecture(path, state, expected, f"open_clip {model_name}", _bad_file)
+
+
+#: The safetensors metadata key naming the open_clip model a weights file holds (``cliport-pretrain`` writes it).
+MODEL_NAME_KEY = "open_clip_model"
+
+
+def _written_for(path: Path) -> str | None:
+    """The model a safetensors weights file says it holds (:data:`MODEL_NAME_KEY`), or None (not said, not one)."""
+    if path.suffix != ".safetensors":
+        return None
+    from safetensors import SafetensorError, safe_open
+
+    try:
+        with safe_open(str(path), framework="pt") as f:
+            return (f.metadata() or {}).get(MODEL_NAME_KEY)
+    except (SafetensorError, OSError):
+        return None
 
 
 def _is_torchscript(path: Path) -> bool:
@@ -167,7 +188,7 @@ def calibrate_batch_norm(model: Any, n_images: int = 4, size: int = 128) -> None
 
 def _create_model(model_name: str, pretrained: str | None = None) -> Any:
     """``open_clip.create_model``; a Hugging Face text tower whose config cannot be fetched is one line."""
-    import open_clip
+    open_clip = import_open_clip()
 
     kwargs: dict[str, Any] = {} if pretrained is not None else {"pretrained_text": False}
     try:
@@ -202,6 +223,17 @@ def _set_normalisation(model: Any, model_name: str, tag: str | None) -> nn.Modul
     return model
 
 
+def create_clip_model(model_name: str, seed: int) -> Any:
+    """A fresh open_clip ``model_name``: open_clip's initialisation under ``torch.manual_seed(seed)`` (the global
+    random state is left as it was), the input normalisation set as for a weights file of the model. What
+    ``"random"`` starts from (before its batch-norm calibration) and what ``cliport-pretrain`` trains."""
+    check_model_name(model_name)
+    with torch.random.fork_rng(devices=[]), quiet_open_clip(expect_random_init=True):
+        torch.manual_seed(seed)
+        model = _create_model(model_name)
+    return _set_normalisation(model, model_name, None)
+
+
 def build_clip_model(source: str, model_name: str = MODEL_NAME) -> nn.Module:
     """Build open_clip ``model_name`` with weights from ``source``: one of the model's pretrained tags
     ("openai" for the default), a state-dict file, OpenAI's TorchScript file, or "random".
@@ -209,16 +241,14 @@ def build_clip_model(source: str, model_name: str = MODEL_NAME) -> nn.Module:
     The name is checked first (:class:`UnknownEncoderError`, :class:`UnsupportedEncoderError`).
     """
     check_model_name(model_name)
-    with quiet_open_clip(expect_random_init=source == "random"):
-        import open_clip
+    open_clip = import_open_clip()
 
     if source == "random":
-        with torch.random.fork_rng(devices=[]), quiet_open_clip(expect_random_init=True):
-            torch.manual_seed(RANDOM_SEED)
-            model = _create_model(model_name)
-            if any(isinstance(m, nn.BatchNorm2d) for m in model.visual.modules()):
+        model = create_clip_model(model_name, RANDOM_SEED)
+        if any(isinstance(m, nn.BatchNorm2d) for m in model.visual.modules()):
+            with torch.random.fork_rng(devices=[]):
                 calibrate_batch_norm(model)
-        return _set_normalisation(model, model_name, None)
+        return model
     tags = pretrained_tags(model_name)
     if source in tags:
         cached = _cached_pretrained_file(model_name, source)
@@ -261,6 +291,10 @@ def build_clip_model(source: str, model_name: str = MODEL_NAME) -> nn.Module:
     # The weights are loaded right below (strictly), so open_clip's "initialized randomly" is not true here.
     with quiet_open_clip(expect_random_init=True):
         model = _create_model(model_name)
+    written_for = _written_for(path)
+    if written_for is not None and written_for != model_name:
+        reason = f"its metadata says it holds {written_for} weights, not {model_name}'s"
+        raise _bad_file(path, f"{reason} (semantic encoder {written_for}?)")
     _check_architecture(path, state, model.state_dict(), model_name)
     model.load_state_dict(state, strict=True)
     return _set_normalisation(model, model_name, None)

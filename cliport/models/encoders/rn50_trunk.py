@@ -15,6 +15,10 @@ Weight sources (``rn50_weights`` in the agent configs):
   ``.safetensors``). The classifier's ``fc.*`` tensors may be present and are ignored (the head is not
   used); every other tensor must be there with its shape. Batch norms' ``num_batches_tracked``
   counters, absent from some older files, may be missing (they play no part in eval mode).
+- R3M's ResNet-50 (``~/.r3m/r3m_50/model.pt`` as R3M's ``load_r3m("resnet50")`` downloads it): a dict holding,
+  under ``"r3m"``, the state dict of its DataParallel-wrapped model, whose ``module.convnet.*`` tensors are a
+  torchvision ``resnet50`` without ``fc`` (R3M normalises images with ImageNet's statistics, as this trunk's
+  encoder does); its language head (``module.lang_enc.*``, ``module.lang_rew.*``) is not used.
 - ``"random"``: a seeded (seed 0) random initialisation whose batch-norm statistics are calibrated
   on noise so that its features keep unit scale (tests and benchmarks only).
 
@@ -160,5 +164,18 @@ def build_rn50_trunk(source: str) -> ResNet50Trunk:
         raise RN50WeightsUnavailable(
             _rn50_offline_help(source, "it is neither 'imagenet', 'random' nor an existing file.")
         )
-    state = weights.load_state_dict_file(path, _bad_rn50_file)
+    state = r3m_convnet(weights.load_state_dict_file(path, _bad_rn50_file, wrappers=("state_dict", "r3m")))
     return _load_trunk_state(ResNet50Trunk(_resnet50()), path, state).eval()
+
+
+#: The prefix of R3M's visual encoder in its checkpoints (after DataParallel's ``module.``, which the file loader
+#: strips): ``convnet.conv1.weight``, ...
+R3M_CONVNET = "convnet."
+
+
+def r3m_convnet(state: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """An R3M checkpoint's visual encoder as a torchvision state dict (its ``convnet.*`` tensors, prefix stripped);
+    any other state dict as it is."""
+    if not any(k.startswith(R3M_CONVNET) for k in state):
+        return state
+    return {k.removeprefix(R3M_CONVNET): v for k, v in state.items() if k.startswith(R3M_CONVNET)}

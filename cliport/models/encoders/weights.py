@@ -29,12 +29,15 @@ def first_sentence(err: BaseException, limit: int = 120) -> str:
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
-def load_state_dict_file(path: Path, error: BadFileError) -> dict[str, torch.Tensor]:
+def load_state_dict_file(
+    path: Path, error: BadFileError, wrappers: tuple[str, ...] = ("state_dict",)
+) -> dict[str, torch.Tensor]:
     """The tensors of a state-dict file (``.safetensors``, else ``torch.save`` format: ``.pt``/``.pth``/``.bin``).
 
-    Loads with ``weights_only=True`` (never runs code from the file), unwraps a ``{"state_dict": ...}``
-    checkpoint and strips DataParallel's ``module.`` prefix. Raises ``error(path, reason)`` with a one-line
-    reason if the file is empty, truncated, random bytes, a pickled model or not a mapping of named tensors.
+    Loads with ``weights_only=True`` (never runs code from the file), unwraps a checkpoint that holds the state
+    dict under one of ``wrappers`` (``{"state_dict": ...}``; R3M's ``{"r3m": ...}`` where a loader asks for it)
+    and strips DataParallel's ``module.`` prefix. Raises ``error(path, reason)`` with a one-line reason if the
+    file is empty, truncated, random bytes, a pickled model or not a mapping of named tensors.
     """
     if path.suffix == ".safetensors":
         from safetensors import SafetensorError
@@ -64,8 +67,9 @@ def load_state_dict_file(path: Path, error: BadFileError) -> dict[str, torch.Ten
         if str(err).startswith("Invalid magic number"):  # neither a zip archive nor torch's legacy format
             raise error(path, "not a PyTorch state-dict file (random or foreign bytes)") from None
         raise error(path, f"truncated or corrupt checkpoint ({first_sentence(err)})") from None
-    if isinstance(state, Mapping) and isinstance(state.get("state_dict"), Mapping):
-        state = state["state_dict"]
+    wrapper = next((k for k in wrappers if isinstance(state, Mapping) and isinstance(state.get(k), Mapping)), None)
+    if wrapper is not None:
+        state = state[wrapper]
     if not isinstance(state, Mapping) or not all(
         isinstance(k, str) and isinstance(v, torch.Tensor) for k, v in state.items()
     ):
