@@ -46,13 +46,17 @@ LAYERS: dict[str, tuple[str, ...]] = {
         "cliport", "cliport.errors", "cliport.utils", "cliport.env", "cliport.tasks", "cliport.data",
         "cliport.agents", "cliport.evaluation",
     ),
+    "cliport.pretrain": (
+        "cliport", "cliport.errors", "cliport.utils", "cliport.env", "cliport.tasks", "cliport.models.encoders",
+        "cliport.evaluation",
+    ),  # contrastive pretraining of the encoders on rendered crops, its probe, the colour-transfer report
     "cliport.study": (
         "cliport.errors", "cliport.utils", "cliport.tasks", "cliport.data", "cliport.agents", "cliport.train",
         "cliport.evaluation",
     ),
     "cliport.cli": (
         "cliport", "cliport.errors", "cliport.utils", "cliport.env", "cliport.tasks", "cliport.data",
-        "cliport.agents", "cliport.train", "cliport.evaluation", "cliport.deploy", "cliport.study",
+        "cliport.agents", "cliport.train", "cliport.evaluation", "cliport.deploy", "cliport.study", "cliport.pretrain",
     ),
 }  # fmt: skip
 

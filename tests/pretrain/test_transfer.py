@@ -1,0 +1,58 @@
+"""The colour report: the unseen-colours split's test scenes do hold the colours the seen split's demos never show,
+and what is measured is split by whether an unseen colour is named."""
+
+from __future__ import annotations
+
+import pytest
+
+from cliport.data.seeds import episode_seeds
+from cliport.pretrain.transfer import colour_report, scene_colors, scenes_summary, split_by_colour
+from cliport.pretrain.vocabulary import UNSEEN_COLORS
+from cliport.tasks.colors import EVAL_COLORS, TRAIN_COLORS
+
+SEEN_TASK, UNSEEN_TASK = "put-one-block-in-bowl-seen-colors", "put-one-block-in-bowl-unseen-colors"
+
+
+def test_unseen_test_scenes_use_unseen_colours_and_seen_ones_never() -> None:
+    """The first 4 test scenes of each split (the first the lesson tests): the unseen split's colours are CLIPort's
+    evaluation palette, nearly every scene holds an unseen colour; the seen split's test scenes hold none."""
+    seeds = episode_seeds("test", 4)
+    unseen, seen = scene_colors(UNSEEN_TASK, seeds, 0.5), scene_colors(SEEN_TASK, seeds, 0.5)
+    unseen_summary, seen_summary = scenes_summary(unseen), scenes_summary(seen)
+    assert set(unseen_summary["colors_used"]) <= set(EVAL_COLORS)
+    assert set(unseen_summary["unseen_colors_used"]) == set(UNSEEN_COLORS)
+    assert unseen_summary["with_an_unseen_color"] == 4  # 5 of 7 colours per scene: at least 2 are unseen
+    assert set(seen_summary["colors_used"]) <= set(TRAIN_COLORS) and seen_summary["with_an_unseen_color"] == 0
+    for scene in unseen.values():
+        assert scene["goal_block"] in scene["blocks"] and scene["goal_bowl"] in scene["bowls"]
+
+
+def test_split_by_colour_counts_each_episode_and_swap_once() -> None:
+    colors = {
+        1: {"goal_block": "pink", "goal_bowl": "red", "blocks": ["pink", "red", "blue"], "bowls": ["red", "green"]},
+        3: {"goal_block": "blue", "goal_bowl": "green", "blocks": ["blue", "red", "white"], "bowls": ["green", "red"]},
+    }
+    swaps = [
+        {"named": "red", "followed": True},
+        {"named": "blue", "followed": False},
+        {"named": "white", "followed": True},
+        {"named": "pink", "followed": False},
+    ]
+    split = split_by_colour({1: True, 3: False}, colors, swaps)
+    assert split["unseen_named"] == {"episodes": 1, "solved": 1, "swaps": 2, "followed": 1, "solved_rate": 1.0,
+                                     "followed_rate": 0.5}  # fmt: skip
+    assert split["seen_named"] == {"episodes": 1, "solved": 0, "swaps": 2, "followed": 1, "solved_rate": 0.0,
+                                   "followed_rate": 0.5}  # fmt: skip
+
+
+@pytest.mark.e2e
+def test_colour_report_of_an_agent(tmp_path) -> None:
+    """A random two-stream agent over cliport-RN-tiny on 2 test scenes of the unseen split: every count adds up."""
+    from cliport.agents import make_agent
+
+    agent = make_agent("two_stream", {"clip_weights": "random", "semantic_encoder": "cliport-RN-tiny", "width": 0.0625,
+                                      "n_rotations": 1, "map_scale": 0.5})  # fmt: skip
+    report = colour_report(agent, UNSEEN_TASK, n_episodes=2, swap_scenes=2, camera_scale=0.5)
+    assert report["test"]["episodes"] == 2 and report["following"]["n"] == 4 == len(report["swaps"])
+    assert report["unseen_named"]["episodes"] + report["seen_named"]["episodes"] == 2
+    assert report["unseen_named"]["swaps"] + report["seen_named"]["swaps"] == 4
