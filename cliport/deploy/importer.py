@@ -48,6 +48,7 @@ from cliport.deploy.scene import SceneError, check_views, fuse_scene, load_camer
 from cliport.env import heightmap as hm
 from cliport.env.cameras import CameraConfig
 from cliport.errors import DemoImportError
+from cliport.utils.files import read_json
 
 EPISODE_DIR = re.compile(r"episode-(\d+)")
 STEP_FIELDS = ("rgb", "depth", "pick", "place", "instruction")
@@ -129,13 +130,8 @@ def check_episode(index: int, folder: str) -> SourceEpisode:
     except SceneError as e:
         raise DemoImportError(f"{folder}: {e}") from None
     path = os.path.join(folder, "steps.json")
-    try:
-        with open(path) as f:
-            data = json.load(f)
-    except FileNotFoundError:
-        raise DemoImportError(f"{folder}: steps.json not found (a list of steps: {', '.join(STEP_FIELDS)})") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise DemoImportError(f"{path} is not valid JSON: {e}") from None
+    absent = f"{folder}: steps.json not found (a list of steps: {', '.join(STEP_FIELDS)})"
+    data = read_json(path, DemoImportError, absent)
     if not isinstance(data, list) or not data:
         raise DemoImportError(f"{path} must hold a non-empty list of steps, got {type(data).__name__}")
     episode = SourceEpisode(folder, index, cameras)

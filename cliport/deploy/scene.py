@@ -27,6 +27,7 @@ import numpy as np
 from cliport.env import heightmap as hm
 from cliport.env.cameras import CameraConfig
 from cliport.errors import UserError
+from cliport.utils.files import read_json
 
 #: A median depth above this (metres) is taken for a wrong unit (millimetres given as metres).
 MAX_MEDIAN_DEPTH = 10.0
@@ -106,13 +107,7 @@ def parse_camera(data: Any, index: int, source: str = "cameras.json") -> CameraC
 
 def load_cameras(path: str) -> list[CameraConfig]:
     """Read and check a cameras.json file (a list of camera objects)."""
-    try:
-        with open(path) as f:
-            data = json.load(f)
-    except FileNotFoundError:
-        raise SceneError(f"cameras file not found: {path}") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise SceneError(f"{path} is not valid JSON: {e}") from None
+    data = read_json(path, SceneError, f"cameras file not found: {path}")
     if not isinstance(data, list) or not data:
         raise SceneError(f"{path} must hold a non-empty list with one object per camera, got {type(data).__name__}")
     return [parse_camera(c, i, path) for i, c in enumerate(data)]

@@ -15,7 +15,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import IO, Any
 
-from cliport.errors import CheckpointError
+from cliport.errors import CheckpointError, UserError
 
 
 def _atomic_write(path: str | os.PathLike[str], write: Callable[[IO[bytes]], object]) -> None:
@@ -49,9 +49,21 @@ def write_text(path: str | os.PathLike[str], text: str) -> None:
     write_bytes(path, text.encode())
 
 
-def read_json(path: str | os.PathLike[str]) -> Any:
-    with open(path) as f:
-        return json.load(f)
+def read_json(path: str | os.PathLike[str], error: type[UserError] | None = None, missing: str | None = None) -> Any:
+    """The value a JSON file holds. With ``error`` (a user-error class), a missing file raises ``error(missing)``
+    (default: ``PATH not found``) and a file that is not JSON ``error("PATH is not valid JSON: ...")``; without it,
+    the OS's and the JSON decoder's own exceptions."""
+    try:
+        with open(path) as f:
+            return json.load(f)
+    except FileNotFoundError:
+        if error is None:
+            raise
+        raise error(missing or f"{path} not found") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        if error is None:
+            raise
+        raise error(f"{path} is not valid JSON: {e}") from None
 
 
 def save_torch(obj: Any, path: str | os.PathLike[str]) -> None:

@@ -38,3 +38,18 @@ def test_unreadable_checkpoints_name_the_file(tmp_path, damage):
         load_torch(path)
     message = str(err.value)
     assert str(path) in message and "weights_only=False" not in message and "\n" not in message
+
+
+def test_read_json_maps_a_missing_or_broken_file_to_the_callers_error(tmp_path):
+    from cliport.errors import ConfigError
+
+    broken = tmp_path / "broken.json"
+    broken.write_text("{not json")
+    with pytest.raises(FileNotFoundError):
+        read_json(tmp_path / "nope.json")
+    with pytest.raises(ConfigError, match="^cameras file not found: x$"):
+        read_json(tmp_path / "nope.json", ConfigError, "cameras file not found: x")
+    with pytest.raises(ConfigError, match=f"^{tmp_path / 'nope.json'} not found$"):
+        read_json(tmp_path / "nope.json", ConfigError)
+    with pytest.raises(ConfigError, match=f"^{broken} is not valid JSON: Expecting property name"):
+        read_json(broken, ConfigError)
