@@ -2,22 +2,62 @@
 
 The names below are re-exported from the modules that hold them: the base class (``base``), checkpoint files
 (``checkpoint``), the configs (``config``), and the registry with ``make_agent`` and ``load_agent`` (``registry``).
-Nothing in this package imports this ``__init__``.
+Each is imported when first used, so that importing a module of this package (the registry, the configs: what the
+console scripts' flags need) loads no agent and no torch. Nothing in this package imports this ``__init__``.
 """
 
-from cliport.agents.base import PickPlaceAgent
-from cliport.agents.checkpoint import read_checkpoint, read_weights
-from cliport.agents.config import AgentConfig
-from cliport.agents.registry import (
-    agent_class,
-    agent_from_payload,
-    agent_names,
-    config_classes,
-    load_agent,
-    make_agent,
-    make_config,
-    register_agent,
-)
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from cliport.agents.base import PickPlaceAgent
+    from cliport.agents.checkpoint import read_checkpoint, read_weights
+    from cliport.agents.config import AgentConfig
+    from cliport.agents.registry import (
+        agent_class,
+        agent_from_payload,
+        agent_names,
+        config_classes,
+        load_agent,
+        make_agent,
+        make_config,
+        register_agent,
+        resolve_agent,
+    )
+
+#: Each re-exported name and the module of this package that holds it.
+_HOMES = {
+    "PickPlaceAgent": "base",
+    "read_checkpoint": "checkpoint",
+    "read_weights": "checkpoint",
+    "AgentConfig": "config",
+    **dict.fromkeys(
+        (
+            "agent_class",
+            "agent_from_payload",
+            "agent_names",
+            "config_classes",
+            "load_agent",
+            "make_agent",
+            "make_config",
+            "register_agent",
+            "resolve_agent",
+        ),
+        "registry",
+    ),
+}
+
+
+def __getattr__(name: str) -> Any:
+    """A re-exported name, imported from its module at first use and kept here (so it can be monkeypatched)."""
+    if name not in _HOMES:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"{__name__}.{_HOMES[name]}"), name)
+    globals()[name] = value
+    return value
+
 
 __all__ = [
     "AgentConfig",
@@ -32,4 +72,5 @@ __all__ = [
     "read_checkpoint",
     "read_weights",
     "register_agent",
+    "resolve_agent",
 ]

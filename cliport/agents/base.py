@@ -1,24 +1,27 @@
-"""The pick-and-place agent every architecture shares, composed of its parts' modules: the objective and
-optimiser step (:mod:`~cliport.agents.loss`), targets and actions between poses and maps
-(:mod:`~cliport.agents.decode`), the per-device speed settings (:mod:`~cliport.agents.device_options`) and
-the weights on disk (:mod:`~cliport.agents.checkpoint`)."""
+"""The pick-and-place agent every architecture shares: its nets (a pick head, a place head, an optional frozen
+encoder) and its public face, each job handed to the part named for it: the per-device speed settings
+(:mod:`~cliport.agents.device_options`), the sentence features and their centring
+(:mod:`~cliport.agents.sentences`), the training inputs, objective and optimiser (:mod:`~cliport.agents.loss`),
+acting: targets and actions between poses and maps (:mod:`~cliport.agents.decode`), and the weights on disk
+(:mod:`~cliport.agents.checkpoint`)."""
 
 from __future__ import annotations
 
 import contextlib
 import os
-from typing import Any, ClassVar, TypedDict
+from typing import Any, ClassVar
 
 import numpy as np
 import torch
 from torch import nn
 
 from cliport import __version__
-from cliport.agents.checkpoint import CHECKPOINT_FORMAT, pretrained_file, read_payload, save_pretrained_folder
+from cliport.agents import checkpoint as ckpt
+from cliport.agents import decode, sentences
+from cliport.agents import loss as objective
 from cliport.agents.config import AgentConfig
-from cliport.agents.decode import action_targets, actions, decode_pick, decode_place
 from cliport.agents.device_options import DEVICE_OPTIONS, apply_layout_and_precision, option_applies
-from cliport.agents.loss import optimizer_step, pick_place_terms, pick_term, place_term, terms_info
+from cliport.agents.loss import TrainingInputs
 from cliport.agents.registry import agent_class, agent_from_payload
 from cliport.errors import CheckpointError, ConfigError
 from cliport.models.cuda_graphs import GraphedForward, GraphMemory
@@ -27,17 +30,6 @@ from cliport.models.encoders.base import FrozenEncoder
 from cliport.models.heads import PickHead, PlaceHead
 from cliport.models.preprocess import raw_input
 from cliport.utils.files import save_torch
-
-
-class TrainingInputs(TypedDict):
-    """A training batch as :meth:`PickPlaceAgent.loss_terms` takes it (see :meth:`PickPlaceAgent.training_inputs`)."""
-
-    color: torch.Tensor  # (B, H, W, 3) uint8
-    height: torch.Tensor  # (B, H, W) float
-    pick_pix: torch.Tensor  # (B, 2) int64
-    place_pix: torch.Tensor  # (B, 2) int64
-    place_rot: torch.Tensor  # (B,) int64
-    sentence: torch.Tensor | None  # (B, sentence_dim), or None for agents without language
 
 
 class PickPlaceAgent(nn.Module):
@@ -89,6 +81,7 @@ class PickPlaceAgent(nn.Module):
 
     @property
     def device(self) -> torch.device:
+        """The device the agent's nets are on."""
         return next(self.pick.parameters()).device
 
     def optimize_for_device(
@@ -98,19 +91,10 @@ class PickPlaceAgent(nn.Module):
         fused_adam: bool = True,
         act_graphs: bool = True,
     ) -> PickPlaceAgent:
-        """Choose the CUDA speed settings (all on by default); they follow the agent across ``.to()``.
-
-        On CUDA: ``channels_last`` keeps the nets' weights and inputs (raw input, padded key input, query
-        crops) in channels_last, so cuDNN never converts layouts; ``bf16_clip`` runs the frozen encoder's image
-        trunk in bfloat16 (its features are returned as float32; the text encoder stays float32) on GPUs
-        that compute bf16 natively (compute capability 8.0+; elsewhere it stays float32), and its float32
-        weights come back when the setting is switched off or the agent leaves CUDA; ``fused_adam`` makes
-        :meth:`make_optimizer` use the fused Adam kernel (on the CPU too); ``act_graphs`` replays the pick and place
-        forwards of :meth:`act_batch` as CUDA graphs (see :class:`~cliport.models.cuda_graphs.GraphedForward`:
-        batches padded to 1, 2, 4 or 8, one memory pool). On the CPU only fused Adam applies:
-        NCHW float32, eager acting. :meth:`active_device_options` says which apply. Returns
-        the agent.
-        """
+        """Choose the speed settings (all on by default; :mod:`~cliport.agents.device_options` says what each
+        does); they follow the agent across ``.to()``. Each applies on CUDA only, but ``fused_adam``, which applies
+        on the CPU too; :meth:`active_device_options` says which apply. The float32 weights of ``bf16_clip``'s
+        trunk come back when it is switched off or the agent leaves CUDA. Returns the agent."""
         self.device_options.update(
             channels_last=channels_last, bf16_clip=bf16_clip, fused_adam=fused_adam, act_graphs=act_graphs
         )
@@ -149,18 +133,11 @@ class PickPlaceAgent(nn.Module):
         or None for agents that do not read language."""
         if not self.uses_language:
             return None
-        if lang is None or any(text is None for text in lang):
-            raise ValueError(f"the {self.name} agent needs an instruction for every observation")
         assert self.encoder is not None
-        features = self.encoder.sentence_features(list(lang))
+        features = self.encoder.sentence_features(sentences.check_instructions(self.name, lang))
         if not self.centers_sentences:
             return features
-        if not self._sentences_fitted:
-            raise RuntimeError(
-                "this agent centres its sentence features but they were never fitted: call "
-                "fit_sentence_centering(the training instructions) first (cliport-train does)"
-            )
-        return (features - self.sentence_mean) * self.sentence_scale
+        return sentences.centred(features, self.sentence_mean, self.sentence_scale, self._sentences_fitted)
 
     def fit_sentence_centering(self, instructions: list[str]) -> dict[str, float]:
         """Fit the centring of ``center_sentences`` to ``instructions`` (the training set's): the mean of their
@@ -168,42 +145,23 @@ class PickPlaceAgent(nn.Module):
         if not self.centers_sentences:
             raise ValueError(f"this {self.name} agent does not centre its sentence features (center_sentences is off)")
         assert self.encoder is not None
-        texts = sorted({text for text in instructions if text})
-        if len(texts) < 2:
-            raise ValueError(f"centring sentence features needs at least two distinct instructions, got {texts}")
-        with torch.no_grad():
-            features = self.encoder.sentence_features(texts)
-            mean = features.mean(0)
-            spread = (features - mean).pow(2).sum(1).mean().sqrt()
-            if not spread > 0:
-                raise ValueError("the instructions' sentence features are all the same: nothing to centre")
-            self.sentence_mean.copy_(mean)
-            self.sentence_scale.copy_(features.pow(2).sum(1).mean().sqrt() / spread)
+        fitted = sentences.fit_centering(self.encoder, instructions, self.sentence_mean, self.sentence_scale)
         self._sentences_fitted = True
-        return {"instructions": len(texts), "scale": float(self.sentence_scale)}
+        return fitted
 
     def make_optimizer(self, eps: float = 1e-8) -> torch.optim.Optimizer:
         """Adam over the trainable parameters at the configured learning rate with epsilon ``eps`` (a training
-        recipe's): the fused kernel on CUDA and the CPU (see :meth:`optimize_for_device`), the foreach one elsewhere
-        or when it is switched off.
-        Adam is per parameter, so one optimiser over every net steps as the reference's one per net does."""
-        fused = self._use("fused_adam")
-        return torch.optim.Adam(
-            self.trainable_parameters(),
-            lr=self.config.lr,
-            eps=eps,
-            fused=fused or None,
-            foreach=None if fused else True,
-        )
+        recipe's): fused on CUDA and the CPU unless ``fused_adam`` is off (:func:`~.loss.make_optimizer`)."""
+        return objective.make_optimizer(self.trainable_parameters(), self.config.lr, eps, self._use("fused_adam"))
 
     def set_encoder_norm_training(self, enabled: bool) -> int:
-        """Whether training forwards run the frozen encoder's batch norms in training mode (each sample's own
-        statistics; running statistics updated as the reference's batch-1 steps would), as the reference
-        CLIPort's ``attention.train()`` does. Only nets that keep their own statistics (``per_net_clip_stats``)
-        can: the shared encoder's are never saved. Acting is unaffected. Returns how many nets it applies to."""
+        """Whether training forwards run the frozen encoder's batch norms in training mode, as the reference
+        CLIPort's ``attention.train()`` does (:meth:`EncoderNet.set_encoder_norm_training`); only nets with their own
+        statistics (``per_net_clip_stats``) can. Acting is unaffected. Returns how many nets it applies to."""
         return sum(net.set_encoder_norm_training(enabled) for net in self.modules() if isinstance(net, EncoderNet))
 
     def trainable_parameters(self) -> list[nn.Parameter]:
+        """The parameters training updates (every one but the frozen encoders')."""
         return [p for p in self.parameters() if p.requires_grad]
 
     def logits(
@@ -220,30 +178,16 @@ class PickPlaceAgent(nn.Module):
         pick pixel (B, 2), place pixel (B, 2) (row, col; int64, clamped to the (H, W) image) and the
         rotation bin (B,) of the relative yaw, as the place head decodes it (see
         :func:`~cliport.agents.decode.action_targets`)."""
-        return action_targets(pose0, pose1, hw, self.place.n_rotations)
+        return decode.action_targets(pose0, pose1, hw, self.place.n_rotations)
 
     def training_inputs(self, batch: dict[str, Any], device: torch.device | None = None) -> TrainingInputs:
         """A training batch as the tensors :meth:`loss_terms` takes, on ``device`` (default: the agent's):
         ``color`` (B, H, W, 3) uint8, ``height`` (B, H, W), ``pick_pix``/``place_pix`` (B, 2) and ``place_rot``
         (B,) int64, and ``sentence`` (B, sentence_dim) or None (always on the agent's device). With ``device`` the
-        CPU, tensors the batch holds on the CPU (pinned or not) are returned as they are.
-
-        The targets come from the poses ``pose0``/``pose1`` (B, 7) (see :meth:`action_targets`), or are
-        given directly as ``pick_pix``/``place_pix`` (B, 2) and ``place_rot`` (B,). The inputs are copied
-        to the agent's device with ``non_blocking=True`` (asynchronous from pinned memory), so only uint8
-        colours travel; the sentence features are the frozen encoder's (cached per instruction).
-        """
+        CPU, tensors the batch holds on the CPU (pinned or not) are returned as they are. The targets come from the
+        poses (:meth:`action_targets`) or the batch's own (:func:`~cliport.agents.loss.batch_tensors`)."""
         device = self.device if device is None else device
-
-        def move(value: Any) -> torch.Tensor:
-            return torch.as_tensor(value).to(device, non_blocking=True)
-
-        color, height = move(batch["color"]), move(batch["height"])
-        if "pose0" in batch:
-            targets = self.action_targets(batch["pose0"], batch["pose1"], (height.shape[-2], height.shape[-1]))
-        else:
-            targets = (batch["pick_pix"], batch["place_pix"], batch["place_rot"])
-        pick_pix, place_pix, place_rot = (move(t).long() for t in targets)
+        color, height, pick_pix, place_pix, place_rot = objective.batch_tensors(batch, device, self.action_targets)
         return {
             "color": color,
             "height": height,
@@ -263,24 +207,19 @@ class PickPlaceAgent(nn.Module):
         sentence: torch.Tensor | None,
         loss: str = "sample_ce",
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """The training objective as a function of tensors on the agent's device (:meth:`training_inputs`): colour
-        (B, H, W, 3) uint8, height (B, H, W), target pixels (B, 2) and rotation bins (B,) int64, sentence features
-        (B, sentence_dim) or None -> the loss to minimise and the per-sample cross-entropies (3,) (``loss``,
-        ``pick_loss``, ``place_loss``; see :func:`~cliport.agents.loss.pick_place_terms`). It reads nothing
+        """The training objective of tensors on the agent's device (:meth:`training_inputs`) -> the loss to minimise
+        and the per-sample cross-entropies (3,) (:func:`~cliport.agents.loss.pick_place_terms`). It reads nothing
         back to the host: a training step built on it can be captured as one CUDA graph."""
         x = raw_input(color, height)
         pick_logits, place_logits = self.pick(x, sentence), self.place(x, pick_pix, sentence)
-        return pick_place_terms(pick_logits, place_logits, pick_pix, place_pix, place_rot, loss)
+        return objective.pick_place_terms(pick_logits, place_logits, pick_pix, place_pix, place_rot, loss)
 
     def pick_loss_terms(
         self, x: torch.Tensor, pick_pix: torch.Tensor, sentence: torch.Tensor | None, loss: str = "sample_ce"
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """The pick half of :meth:`loss_terms`: raw input (B, 6, H, W) (:func:`~cliport.models.preprocess.raw_input`),
-        target pixels (B, 2) int64, sentence features -> the pick's share of the loss to minimise and its per-sample
-        cross-entropy (scalars, :func:`~cliport.agents.loss.pick_term`). No parameter is shared with the place
-        half, so the two can be differentiated separately, even at once (see
-        :class:`~cliport.train.graphed_step.TrainStep`)."""
-        return pick_term(self.pick(x, sentence), pick_pix, loss)
+        """The pick half of :meth:`loss_terms` on the raw input (B, 6, H, W) (:func:`~cliport.agents.loss.pick_term`).
+        It shares no parameter with the place half: the two can be differentiated apart, even at once."""
+        return objective.pick_term(self.pick(x, sentence), pick_pix, loss)
 
     def place_loss_terms(
         self,
@@ -291,23 +230,15 @@ class PickPlaceAgent(nn.Module):
         sentence: torch.Tensor | None,
         loss: str = "sample_ce",
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """The place half of :meth:`loss_terms`: raw input (B, 6, H, W), pick and place target pixels (B, 2) and
-        rotation bins (B,) int64, sentence features -> the place's share of the loss to minimise and its per-sample
-        cross-entropy (scalars, :func:`~cliport.agents.loss.place_term`)."""
-        return place_term(self.place(x, pick_pix, sentence), place_pix, place_rot, loss)
+        """The place half of :meth:`loss_terms` on the raw input (B, 6, H, W) (:func:`~.loss.place_term`)."""
+        return objective.place_term(self.place(x, pick_pix, sentence), place_pix, place_rot, loss)
 
     def compute_loss(self, batch: dict[str, Any], loss: str = "sample_ce") -> tuple[torch.Tensor, dict[str, float]]:
-        """Cross-entropy over all pick pixels plus over all place pixels x rotations, averaged over the batch.
-
-        ``loss``: ``sample_ce``, each map's cross-entropy (Ravens'); ``cell_mean``, each map's cross-entropy
-        divided by its cells, H * W for pick and R * H * W for place (the reference CLIPort's mean of
-        ``-label * log_softmax`` over the map). The info dict always reports the per-sample cross-entropies
-        (``pick_loss``, ``place_loss``, ``loss``), so that recipes compare on one scale. The batch is read as
-        :meth:`training_inputs` says (poses or targets; copied to the device) and the loss is
-        :meth:`loss_terms`'.
-        """
+        """:meth:`loss_terms` of a batch as :meth:`training_inputs` reads it: the loss to minimise (``loss``:
+        ``sample_ce`` or ``cell_mean``, :func:`~cliport.agents.loss.pick_place_terms`) and the per-sample
+        cross-entropies (``loss``, ``pick_loss``, ``place_loss``) as floats, one scale for every recipe."""
         total, terms = self.loss_terms(**self.training_inputs(batch), loss=loss)
-        return total, terms_info(terms)
+        return total, objective.terms_info(terms)
 
     def train_step(
         self,
@@ -319,17 +250,15 @@ class PickPlaceAgent(nn.Module):
         """One optimiser step on `batch` with the ``loss`` of :meth:`compute_loss` (see
         :func:`~cliport.agents.loss.optimizer_step`); returns the loss terms."""
         self.train()
-        return optimizer_step(lambda b: self.compute_loss(b, loss), batch, optimizer, autocast)
+        return objective.optimizer_step(lambda b: self.compute_loss(b, loss), batch, optimizer, autocast)
 
     def act(self, obs: dict[str, np.ndarray], instruction: str | None = None) -> dict[str, Any]:
         """Pick and place poses for one observation (``color`` (H, W, 3) uint8, ``height`` (H, W)).
 
-        Returns pose0 / pose1 as ((x, y, z), quat xyzw) — pose0 with yaw 0, pose1 with the decoded
-        relative yaw — pick_pix and place_pix (u, v), place_bin (the rotation bin k) and its yaw place_rot
-        (radians, in [0, 2*pi); see :meth:`PlaceHead.bin_yaw`), and the
-        softmax heatmaps pick_heatmap (H, W) and place_heatmap (H, W) (max over rotations).
-        Same as ``act_batch([obs], [instruction])[0]``.
-        """
+        Returns pose0 / pose1 as ((x, y, z), quat xyzw) — pose0 with yaw 0, pose1 with the decoded relative yaw —
+        pick_pix and place_pix (u, v), place_bin (the rotation bin k) and its yaw place_rot (radians, in [0, 2*pi);
+        :meth:`PlaceHead.bin_yaw`), and the softmax heatmaps pick_heatmap (H, W) and place_heatmap (H, W) (max over
+        rotations). Same as ``act_batch([obs], [instruction])[0]``."""
         return self.act_batch([obs], [instruction])[0]
 
     def _pick_forward(self, x: torch.Tensor, sentence: torch.Tensor | None) -> torch.Tensor:
@@ -340,49 +269,29 @@ class PickPlaceAgent(nn.Module):
         """Raw (B, 6, H, W), pick (B, 2) int64, sentence (B, sentence_dim) or None -> place logits (B, R, H, W)."""
         return self.place(x, pick_pix, sentence)
 
-    def _graphs_apply(self, x: torch.Tensor) -> bool:
-        return self._use("act_graphs") and not torch.is_autocast_enabled(x.device.type)
-
-    def _act_sentence(self, instructions: list[str | None]) -> torch.Tensor | None:
-        if all(i is None for i in instructions):
-            return self.sentence_features(None)
-        texts = [i for i in instructions if i is not None]
-        if len(texts) != len(instructions):
-            raise ValueError("an act batch mixes instructions with None: give every observation one, or none")
-        return self.sentence_features(texts)
-
     @torch.no_grad()
     def act_batch(
         self, observations: list[dict[str, np.ndarray]], instructions: list[str | None]
     ) -> list[dict[str, Any]]:
-        """:meth:`act` for B observations of one image size at once: one batched pick forward, then one
-        batched place forward over the (observation, chosen pick) pairs.
-
-        observations: B dicts of ``color`` (H, W, 3) uint8 and ``height`` (H, W); instructions: B strings
-        (or None for agents without language). Returns B dicts as :meth:`act` does. On CUDA the two
-        forwards replay CUDA graphs (see :meth:`optimize_for_device`) unless autocast is active.
-        """
+        """:meth:`act` for B observations of one image size (B strings, or None for agents without language) at
+        once, B dicts as :meth:`act` returns: one batched forward per head (:func:`~cliport.agents.decode.decide`),
+        replayed as CUDA graphs on CUDA unless autocast is active (:meth:`optimize_for_device`)."""
         if len(observations) != len(instructions):
             raise ValueError(f"{len(observations)} observations but {len(instructions)} instructions")
         if not observations:
             return []
         self.eval()
-        device = self.device
-        heights = [np.asarray(obs["height"], dtype=np.float32) for obs in observations]
-        if len({h.shape for h in heights}) != 1:
-            raise ValueError(f"act_batch needs observations of one size, got {sorted({h.shape for h in heights})}")
-        color = torch.from_numpy(np.stack([np.asarray(obs["color"]) for obs in observations]))
-        x = raw_input(color.to(device), torch.from_numpy(np.stack(heights)).to(device))
-        sentence = self._act_sentence(instructions)
-        graphs = self._graphs_apply(x)
-        pick_prob, pick_pix = decode_pick((self._pick_graphs if graphs else self._pick_forward)(x, sentence))
-        place_logits = (self._place_graphs if graphs else self._place_forward)(x, pick_pix, sentence)
-        place_index, place_heatmap = decode_place(place_logits)
-        return actions(pick_pix, pick_prob, place_index, place_heatmap, heights, self.place.bin_yaw)
+        x, heights = decode.act_input(observations, self.device)
+        sentence = self.sentence_features(sentences.act_instructions(instructions))
+        pick, place = self._act_forwards(x)
+        return decode.decide(x, heights, sentence, pick, place, self.place.bin_yaw)
 
-    def _frozen_prefixes(self) -> list[str]:
-        modules = self.named_modules(remove_duplicate=False)  # the shared encoder sits under several names
-        return [name + "." for name, module in modules if isinstance(module, FrozenEncoder)]
+    def _act_forwards(self, x: torch.Tensor) -> tuple[decode.PickForward, decode.PlaceForward]:
+        """The pick and place forwards acting on ``x`` runs: the CUDA graphs' replays where ``act_graphs`` applies
+        and autocast is off, else the eager forwards."""
+        if self._use("act_graphs") and not torch.is_autocast_enabled(x.device.type):
+            return self._pick_graphs, self._place_graphs
+        return self._pick_forward, self._place_forward
 
     def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):  # type: ignore[no-untyped-def]  # torch's hook
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
@@ -391,16 +300,11 @@ class PickPlaceAgent(nn.Module):
 
     def trainable_state_dict(self) -> dict[str, torch.Tensor]:
         """The state dict without any frozen encoder tensor."""
-        prefixes = tuple(self._frozen_prefixes())
-        return {k: v for k, v in self.state_dict().items() if not (prefixes and k.startswith(prefixes))}
+        return ckpt.trainable_state(self)
 
     def load_trainable_state_dict(self, state: dict[str, torch.Tensor]) -> None:
         """Load weights saved by :meth:`trainable_state_dict` (every trainable tensor must be present)."""
-        missing, unexpected = self.load_state_dict(state, strict=False)
-        prefixes = tuple(self._frozen_prefixes())
-        missing = [k for k in missing if not (prefixes and k.startswith(prefixes))]
-        if missing or unexpected:
-            raise KeyError(f"checkpoint mismatch: missing {missing}, unexpected {unexpected}")
+        ckpt.load_trainable_state(self, state)
 
     def clip_source(self) -> str | None:
         """Where the frozen CLIP's weights came from, or None for agents without CLIP."""
@@ -422,7 +326,7 @@ class PickPlaceAgent(nn.Module):
     def checkpoint_payload(self) -> dict[str, Any]:
         """What a checkpoint holds: agent name, config, pretrained weight sources and trainable weights (CPU)."""
         return {
-            "format": CHECKPOINT_FORMAT,
+            "format": ckpt.CHECKPOINT_FORMAT,
             "cliport_version": __version__,
             "agent": self.name,
             "config": self.config.to_dict(),
@@ -436,12 +340,10 @@ class PickPlaceAgent(nn.Module):
         save_torch(self.checkpoint_payload(), path)
 
     def save_pretrained(self, folder: str | os.PathLike[str]) -> str:
-        """Write ``folder/model.safetensors`` (the trainable weights; agent, config and weight sources in its
-        metadata, no pickle) and ``folder/config.json`` (the same description as JSON); returns the folder.
-        Frozen pretrained parts are not written: they are reloaded from the recorded sources.
-        :meth:`from_pretrained` loads the folder. A training run's folder is refused (its config.json is the
-        run's; its ``model.safetensors`` is written by training)."""
-        return save_pretrained_folder(self.checkpoint_payload(), folder)
+        """Write ``folder/model.safetensors`` (trainable weights, no pickle) and ``folder/config.json`` (agent, config,
+        weight sources); returns the folder, which :meth:`from_pretrained` loads. A training run's folder is refused
+        (:func:`~cliport.agents.checkpoint.save_pretrained_folder`)."""
+        return ckpt.save_pretrained_folder(self.checkpoint_payload(), folder)
 
     @classmethod
     def from_pretrained(
@@ -462,8 +364,8 @@ class PickPlaceAgent(nn.Module):
         sources unless ``weights`` maps a source field to another (as :func:`cliport.agents.load_agent`).
         Called on an agent class (``TwoStreamAgent.from_pretrained``), the weights must be of that agent.
         """
-        path = pretrained_file(str(source), checkpoint)
-        payload = read_payload(path)
+        path = ckpt.pretrained_file(str(source), checkpoint)
+        payload = ckpt.read_payload(path)
         if not issubclass(agent_class(payload["agent"]), cls):  # before any pretrained part is loaded
             raise CheckpointError(f"{path} holds a {payload['agent']} agent, not a {cls.name or cls.__name__} one")
         return agent_from_payload(payload, path, device=device, weights=weights)

@@ -4,19 +4,25 @@ and which file ``from_pretrained`` reads for a run folder, a pretrained folder o
 A checkpoint payload (see ``PickPlaceAgent.checkpoint_payload``) is a dict of ``format``, ``cliport_version``,
 ``agent``, ``config``, ``clip_weights``, ``weight_sources`` and the trainable ``state_dict``; a ``.pt``
 checkpoint is that dict saved with torch, a ``.safetensors`` weights file its tensors with the rest as string
-metadata. Nothing here imports an agent: building one from a payload is ``cliport.agents.registry.agent_from_payload``.
+metadata. A checkpoint holds the trainable tensors only (:func:`trainable_state`): frozen pretrained encoders are
+reloaded from the sources it records. Nothing here imports an agent: building one from a payload is
+``cliport.agents.registry.agent_from_payload``.
 """
 
 from __future__ import annotations
 
 import json
 import os
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from cliport import __version__
 from cliport.errors import CheckpointError, ConfigError, RunDirError
 from cliport.utils.files import save_safetensors, write_json
 from cliport.utils.hub import resolve_run_dir
+
+if TYPE_CHECKING:
+    import torch
+    from torch import nn
 
 #: 2 since the networks compute the reference CLIPort's functions (cliport 0.2.0); 1 before.
 CHECKPOINT_FORMAT = 2
@@ -62,6 +68,31 @@ def save_pretrained_folder(payload: dict[str, Any], folder: str | os.PathLike[st
     description = {k: payload[k] for k in DESCRIPTION_KEYS}
     write_json(config_path, {**description, "format": CHECKPOINT_FORMAT, "cliport_version": __version__})
     return str(folder)
+
+
+def frozen_prefixes(module: nn.Module) -> tuple[str, ...]:
+    """The state-dict prefixes (``"pick.net.encoder."``, ...) of every frozen pretrained encoder in ``module``,
+    under each name it sits under (one encoder is shared by several nets)."""
+    from cliport.models.encoders.base import FrozenEncoder
+
+    modules = module.named_modules(remove_duplicate=False)
+    return tuple(name + "." for name, child in modules if isinstance(child, FrozenEncoder))
+
+
+def trainable_state(module: nn.Module) -> dict[str, torch.Tensor]:
+    """``module``'s state dict without any frozen encoder tensor."""
+    prefixes = frozen_prefixes(module)
+    return {k: v for k, v in module.state_dict().items() if not (prefixes and k.startswith(prefixes))}
+
+
+def load_trainable_state(module: nn.Module, state: dict[str, torch.Tensor]) -> None:
+    """Load weights saved by :func:`trainable_state` into ``module``; KeyError naming the tensors missing (every
+    trainable one must be present) or unexpected."""
+    missing, unexpected = module.load_state_dict(state, strict=False)
+    prefixes = frozen_prefixes(module)
+    missing = [k for k in missing if not (prefixes and k.startswith(prefixes))]
+    if missing or unexpected:
+        raise KeyError(f"checkpoint mismatch: missing {missing}, unexpected {unexpected}")
 
 
 def check_format(path: str | os.PathLike[str], written: int) -> None:

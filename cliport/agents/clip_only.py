@@ -11,12 +11,11 @@ from cliport.models.heads import PLACE_FEATURES, PickHead, PlaceHead
 from cliport.models.semantic import SemanticNet
 
 
-@register_agent("clip_only", CLIPConfig)
+@register_agent("clip_only")
 class CLIPOnlyAgent(PickPlaceAgent):
     """Frozen CLIP RN50 trunk and sentence feature, language-gated U-Net decoders; sees RGB only (no height)."""
 
     uses_language = True
-    weight_sources = ("clip_weights",)
     published_columns = {"cliport_table1_test": "clip_only"}
 
     def __init__(self, config: CLIPConfig, encoder: FrozenEncoder | None = None) -> None:

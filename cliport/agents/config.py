@@ -1,4 +1,7 @@
-"""The settings every pick-and-place agent has; each agent's own config subclasses :class:`AgentConfig`.
+"""The settings of the pick-and-place agents: what every agent has (:class:`AgentConfig`) and each family's
+own (its subclasses). They import no torch and no agent, so that the console scripts derive their flags
+(and ``--help``) from them alone; the registry (:data:`cliport.agents.registry.AGENTS`) says which agent
+takes which.
 
 Defaults live in ``configs/<agent name>.toml``; :func:`cliport.agents.make_config` reads them.
 """
@@ -7,7 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 
 @dataclass
@@ -24,6 +27,10 @@ class AgentConfig:
             shrinks alike) and their logits are grown back bilinearly, so heatmaps, pixels and labels keep
             the map's size. 1.0 (the reference) or 0.5 (6.25 mm cells: a CPU step about 3x cheaper).
     """
+
+    #: The fields that name pretrained weights (recorded in checkpoints, never saved in them); an agent's
+    #: ``weight_sources`` are its config's.
+    weight_sources: ClassVar[tuple[str, ...]] = ()
 
     n_rotations: int
     crop_size: int
@@ -80,6 +87,8 @@ class CLIPConfig(LanguageConfig):
             shared CLIP's own statistics.
     """
 
+    weight_sources: ClassVar[tuple[str, ...]] = ("clip_weights",)
+
     clip_weights: str
     semantic_encoder: str
     per_net_clip_stats: bool
@@ -90,3 +99,21 @@ class CLIPConfig(LanguageConfig):
         from cliport.models.encoders.clip_registry import check_model_name
 
         check_model_name(self.semantic_encoder)
+
+
+@dataclass
+class RN50BERTConfig(LanguageConfig):
+    """Settings of the RN50-BERT agent; as :class:`LanguageConfig` plus
+
+    Args:
+        rn50_weights: "imagenet" (torchvision's ImageNet weights: torch's hub cache, else download), a local
+            torchvision resnet50 state-dict file, or "random" (seeded; tests and benchmarks only).
+        bert_weights: "distilbert-base-uncased" (or another Hugging Face DistilBERT repo id: the HF cache,
+            else download), a local folder written by save_pretrained (model + tokenizer), or "random"
+            (seeded, with a word-hashing tokenizer; tests and benchmarks only).
+    """
+
+    weight_sources: ClassVar[tuple[str, ...]] = ("rn50_weights", "bert_weights")
+
+    rn50_weights: str
+    bert_weights: str

@@ -1,5 +1,6 @@
 """Between action poses and the heads' maps: training targets from poses (pixels and rotation bins), and
-actions from logits (the argmax pixels, the rotation bin and the poses they stand for).
+actions from logits (the argmax pixels, the rotation bin and the poses they stand for), the acting half of
+``PickPlaceAgent.act_batch`` (:func:`act_input`, :func:`decide`).
 
 Pixels are (row, col) = (u, v) of the top-down image, whose rows run along the world's y axis and columns
 along x (:mod:`cliport.env.heightmap`); rotation bins are the place head's, whose yaws it gives.
@@ -18,6 +19,11 @@ import torch.nn.functional as F
 from cliport.env.heightmap import BOUNDS, PIXEL_SIZE, pix_to_xyz
 from cliport.env.transforms import yaw_to_quat
 from cliport.models.heads import rotation_bin
+from cliport.models.preprocess import raw_input
+
+#: ``(raw input, sentence) -> pick logits`` and ``(raw input, pick pixels, sentence) -> place logits``.
+PickForward = Callable[[torch.Tensor, torch.Tensor | None], torch.Tensor]
+PlaceForward = Callable[[torch.Tensor, torch.Tensor, torch.Tensor | None], torch.Tensor]
 
 
 def pose_pixels(pose: torch.Tensor, hw: tuple[int, ...]) -> torch.Tensor:
@@ -98,3 +104,28 @@ def actions(
             }
         )
     return results
+
+
+def act_input(observations: list[dict[str, np.ndarray]], device: torch.device) -> tuple[torch.Tensor, list[np.ndarray]]:
+    """B observations of one image size (``color`` (H, W, 3) uint8, ``height`` (H, W)) -> the raw input (B, 6, H,
+    W) on ``device`` and the height maps as float32 (the actions' z); ValueError for observations of mixed sizes."""
+    heights = [np.asarray(obs["height"], dtype=np.float32) for obs in observations]
+    if len({h.shape for h in heights}) != 1:
+        raise ValueError(f"act_batch needs observations of one size, got {sorted({h.shape for h in heights})}")
+    color = torch.from_numpy(np.stack([np.asarray(obs["color"]) for obs in observations]))
+    return raw_input(color.to(device), torch.from_numpy(np.stack(heights)).to(device)), heights
+
+
+def decide(
+    x: torch.Tensor,
+    heights: list[np.ndarray],
+    sentence: torch.Tensor | None,
+    pick_forward: PickForward,
+    place_forward: PlaceForward,
+    bin_yaw: Callable[[int], float],
+) -> list[dict[str, Any]]:
+    """The B actions of raw input ``x`` (B, 6, H, W): one batched pick forward, its argmax pixels, one batched
+    place forward over the (observation, chosen pick) pairs, as :func:`actions` gives them."""
+    pick_prob, pick_pix = decode_pick(pick_forward(x, sentence))
+    place_index, place_heatmap = decode_place(place_forward(x, pick_pix, sentence))
+    return actions(pick_pix, pick_prob, place_index, place_heatmap, heights, bin_yaw)

@@ -1,16 +1,30 @@
-"""The training objective of every agent and the project's one optimiser step."""
+"""The training objective of every agent, its inputs (a batch as tensors on the device), its optimiser and the
+project's one optimiser step."""
 
 from __future__ import annotations
 
 import contextlib
 from collections.abc import Callable
-from typing import Any
+from typing import Any, TypedDict
 
 import torch
 import torch.nn.functional as F
 
+#: ``(pose0, pose1, (H, W)) -> (pick pixels, place pixels, rotation bins)``: an agent's ``action_targets``.
+TargetsFn = Callable[[Any, Any, tuple[int, int]], tuple[torch.Tensor, torch.Tensor, torch.Tensor]]
 #: ``batch -> (loss, info)``: info is a dict of floats (``compute_loss``) or the (3,) device terms (``loss_terms``).
 LossFn = Callable[[dict[str, Any]], tuple[torch.Tensor, Any]]
+
+
+class TrainingInputs(TypedDict):
+    """A training batch as :meth:`~cliport.agents.base.PickPlaceAgent.loss_terms` takes it (``training_inputs``)."""
+
+    color: torch.Tensor  # (B, H, W, 3) uint8
+    height: torch.Tensor  # (B, H, W) float
+    pick_pix: torch.Tensor  # (B, 2) int64
+    place_pix: torch.Tensor  # (B, 2) int64
+    place_rot: torch.Tensor  # (B,) int64
+    sentence: torch.Tensor | None  # (B, sentence_dim), or None for agents without language
 
 
 #: The per-sample cross-entropies a training step reports, in the order of :func:`pick_place_terms`' terms.
@@ -97,3 +111,30 @@ def optimizer_step(
     loss.backward()
     optimizer.step()
     return info
+
+
+def make_optimizer(parameters: list[torch.nn.Parameter], lr: float, eps: float, fused: bool) -> torch.optim.Optimizer:
+    """Adam over ``parameters`` at learning rate ``lr`` with epsilon ``eps``: the fused kernel where ``fused``, the
+    foreach one otherwise. Adam is per parameter, so one optimiser over every net steps as the reference's one
+    per net does."""
+    return torch.optim.Adam(parameters, lr=lr, eps=eps, fused=fused or None, foreach=None if fused else True)
+
+
+def batch_tensors(
+    batch: dict[str, Any], device: torch.device, targets: TargetsFn
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """A training batch's colour (B, H, W, 3) uint8, height (B, H, W), pick and place pixels (B, 2) and rotation
+    bins (B,) int64 on ``device``, copied with ``non_blocking=True`` (asynchronous from pinned memory; tensors
+    already there are returned as they are). The targets are the batch's ``pick_pix``/``place_pix``/``place_rot``,
+    or ``targets`` of its poses ``pose0``/``pose1``."""
+
+    def move(value: Any) -> torch.Tensor:
+        return torch.as_tensor(value).to(device, non_blocking=True)
+
+    color, height = move(batch["color"]), move(batch["height"])
+    if "pose0" in batch:
+        found = targets(batch["pose0"], batch["pose1"], (height.shape[-2], height.shape[-1]))
+    else:
+        found = (batch["pick_pix"], batch["place_pix"], batch["place_rot"])
+    pick_pix, place_pix, place_rot = (move(t).long() for t in found)
+    return color, height, pick_pix, place_pix, place_rot

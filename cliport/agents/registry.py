@@ -1,9 +1,13 @@
-"""The agent registry: the only list of agents in the project, found by name, and building agents by name.
+"""The agent registry: the only list of agents in the project, and building agents by name.
 
-An agent is one module in this package that defines a :class:`~cliport.agents.base.PickPlaceAgent` subclass
-decorated with ``@register_agent("name", ConfigClass)``, and its defaults in ``configs/<name>.toml``. Everything
-that names agents (CLI choices, the reproduction study, scripts, published numbers) asks :func:`agent_names`
-and the agent classes' attributes (``uses_language``, ``weight_sources``, ``published_columns``).
+:data:`AGENTS` names every agent and its config class. An agent is the class of ``cliport/agents/<name>.py``
+decorated with ``@register_agent("<name>")``, a :class:`~cliport.agents.base.PickPlaceAgent` subclass, with its
+defaults in ``configs/<name>.toml``. Names, config classes and weight sources come from the table without
+importing any agent or torch (the console scripts' flags and ``--help``); an agent's module is imported when its
+class is first asked for. Everything that names agents (CLI choices, the reproduction study, scripts, published
+numbers) asks :func:`agent_names` and the agent classes' attributes (``uses_language``, ``weight_sources``,
+``published_columns``). :func:`resolve_agent` is the one place a name becomes a class, a config class and
+checked settings.
 """
 
 from __future__ import annotations
@@ -11,92 +15,137 @@ from __future__ import annotations
 import difflib
 import importlib
 import os
-import pkgutil
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, fields
 from typing import TYPE_CHECKING, Any, TypeVar
 
-import torch
-
-from cliport.agents.checkpoint import read_checkpoint
-from cliport.agents.config import AgentConfig
+from cliport.agents.config import AgentConfig, CLIPConfig, RN50BERTConfig
 from cliport.errors import CheckpointError, ConfigError, UnknownNameError
 
-if TYPE_CHECKING:  # base.py imports this module (from_pretrained builds agents by name)
+if TYPE_CHECKING:  # the agents' modules import this one (and torch); they are imported at first use
+    import torch
+
     from cliport.agents.base import PickPlaceAgent
 
 _PACKAGE = __name__.rpartition(".")[0]
+
+#: Every agent by name, with its config class (the module ``cliport/agents/<name>.py`` defines the agent).
+AGENTS: dict[str, type[AgentConfig]] = {
+    "clip_only": CLIPConfig,
+    "rn50_bert": RN50BERTConfig,
+    "transporter_only": AgentConfig,
+    "two_stream": CLIPConfig,
+}
 _REGISTRY: dict[str, type[PickPlaceAgent]] = {}
-_NOT_AGENTS = {"base", "checkpoint", "config", "decode", "device_options", "loss", "registry"}
-_discovered = False
 _Agent = TypeVar("_Agent", bound="PickPlaceAgent")
 
 
-def register_agent(name: str, config: type[AgentConfig]) -> Callable[[type[_Agent]], type[_Agent]]:
-    """Class decorator: make a PickPlaceAgent subclass buildable as ``make_agent(name)``."""
+def register_agent(name: str) -> Callable[[type[_Agent]], type[_Agent]]:
+    """Class decorator: make a PickPlaceAgent subclass agent ``name`` of :data:`AGENTS` (its ``name``,
+    ``config_class`` and ``weight_sources`` come from there)."""
+    if name not in AGENTS:
+        raise ValueError(f"agent {name!r} is not in AGENTS (cliport/agents/registry.py): add it with its config class")
 
     def wrap(cls: type[_Agent]) -> type[_Agent]:
         if name in _REGISTRY and _REGISTRY[name] is not cls:
             raise ValueError(f"agent name {name!r} is registered twice")
         cls.name = name
-        cls.config_class = config
+        cls.config_class = AGENTS[name]
+        cls.weight_sources = AGENTS[name].weight_sources
         _REGISTRY[name] = cls
         return cls
 
     return wrap
 
 
-def _discover() -> None:
-    global _discovered
-    if not _discovered:
-        for info in pkgutil.iter_modules([os.path.dirname(__file__)]):
-            if info.name not in _NOT_AGENTS and not info.name.startswith("_"):
-                importlib.import_module(f"{_PACKAGE}.{info.name}")
-        _discovered = True
-
-
 def agent_names() -> list[str]:
-    """Every registered agent name, sorted."""
-    _discover()
-    return sorted(_REGISTRY)
+    """Every agent name, sorted."""
+    return sorted(AGENTS)
+
+
+def _check_name(name: object) -> str:
+    """``name`` if it is an agent's; ConfigError for a value that is no name, UnknownNameError (with the closest
+    and the known names) for another name."""
+    if not isinstance(name, str):
+        raise ConfigError(f"agent must be an agent name, got {name!r}")
+    if name not in AGENTS:
+        close = difflib.get_close_matches(name, list(AGENTS), n=1)
+        hint = f" (did you mean {close[0]!r}?)" if close else ""
+        raise UnknownNameError(f"unknown agent {name!r}{hint}; choose one of: {', '.join(agent_names())}")
+    return name
 
 
 def agent_class(name: str) -> type[PickPlaceAgent]:
-    """The class registered as ``name``; UnknownNameError (with the known names) otherwise."""
-    _discover()
+    """The class of agent ``name`` (its module imported at the first call); UnknownNameError otherwise."""
+    _check_name(name)
     if name not in _REGISTRY:
-        close = difflib.get_close_matches(name, list(_REGISTRY), n=1)
-        hint = f" (did you mean {close[0]!r}?)" if close else ""
-        raise UnknownNameError(f"unknown agent {name!r}{hint}; choose one of: {', '.join(sorted(_REGISTRY))}")
+        importlib.import_module(f"{_PACKAGE}.{name}")
+        if name not in _REGISTRY:
+            raise ValueError(f"{_PACKAGE}.{name} registers no agent {name!r} (@register_agent)")
     return _REGISTRY[name]
 
 
 def config_classes() -> list[type[AgentConfig]]:
-    """The config classes of all agents (each once), for deriving command-line flags."""
-    out: list[type[AgentConfig]] = []
-    for name in agent_names():
-        cls = _REGISTRY[name].config_class
-        if cls not in out:
-            out.append(cls)
-    return out
+    """The config classes of all agents (each once), for deriving command-line flags; imports no agent."""
+    return list(dict.fromkeys(AGENTS[name] for name in agent_names()))
 
 
-def make_config(name: str, overrides: dict[str, Any] | None = None) -> AgentConfig:
+def weight_fields() -> list[str]:
+    """The pretrained-weight config fields of all agents (``clip_weights``, ...), each once; imports no agent."""
+    return list(dict.fromkeys(f for cls in config_classes() for f in cls.weight_sources))
+
+
+@dataclass(frozen=True)
+class AgentSpec:
+    """An agent's name resolved by :func:`resolve_agent`: its config class and the settings asked for (checked:
+    each one a field of the config class)."""
+
+    name: str
+    config_class: type[AgentConfig]
+    overrides: dict[str, Any]
+
+    @property
+    def agent_class(self) -> type[PickPlaceAgent]:
+        """The agent's class (imports its module, and torch, at the first call)."""
+        return agent_class(self.name)
+
+
+def resolve_agent(name: object, overrides: Mapping[str, Any] | None = None) -> AgentSpec:
+    """Agent ``name`` with settings ``overrides`` (config fields, any subset): its config class and the settings.
+    UnknownNameError for an unknown name; ConfigError naming every setting the agent does not have, and its
+    settings. Imports no agent."""
+    name = _check_name(name)
+    config_class = AGENTS[name]
+    given = dict(overrides or {})
+    known = {f.name for f in fields(config_class)}
+    unknown = sorted(set(given) - known)
+    if unknown:
+        close = [difflib.get_close_matches(key, known, n=1) for key in unknown]
+        hint = "".join(f" (did you mean {c[0]!r}?)" for c in close if c)
+        raise ConfigError(
+            f"agent {name} has no setting(s) {', '.join(unknown)}{hint}; its settings: {', '.join(sorted(known))}"
+        )
+    return AgentSpec(name, config_class, given)
+
+
+def make_config(name: str, overrides: Mapping[str, Any] | None = None) -> AgentConfig:
     """The config of agent ``name``: ``configs/<name>.toml`` updated with ``overrides`` (checked)."""
     from cliport.utils.config import load
 
-    config = load(agent_class(name).config_class, name, overrides)
+    spec = resolve_agent(name, overrides)
+    config = load(spec.config_class, name, spec.overrides)
     config.validate()
     return config
 
 
 def make_agent(name: str, config: AgentConfig | dict[str, Any] | None = None) -> PickPlaceAgent:
     """Build agent ``name`` from a config object, a dict of overrides of the defaults, or the defaults."""
-    cls = agent_class(name)
-    if not isinstance(config, cls.config_class):
+    spec = resolve_agent(name, config if isinstance(config, dict) else None)
+    if not isinstance(config, spec.config_class):
         if config is not None and not isinstance(config, dict):
-            raise TypeError(f"{name} needs a {cls.config_class.__name__} or a dict, got {type(config).__name__}")
-        config = make_config(name, config)
-    return cls(config)  # type: ignore[call-arg]  # registered agents take (config); the base class takes nets
+            raise TypeError(f"{name} needs a {spec.config_class.__name__} or a dict, got {type(config).__name__}")
+        config = make_config(name, spec.overrides)
+    return spec.agent_class(config)  # type: ignore[call-arg]  # registered agents take (config); the base takes nets
 
 
 def agent_from_payload(
@@ -108,10 +157,10 @@ def agent_from_payload(
     """Build the agent a checkpoint payload (``read_checkpoint`` or ``read_weights``) describes and load its
     weights; ``weights`` overrides recorded pretrained sources (see :func:`load_agent`). ``path`` names the
     file in errors."""
-    cls = agent_class(payload["agent"])
+    config_class = resolve_agent(payload["agent"]).config_class
     config = dict(payload["config"])
     overrides = dict(weights or {})
-    for field in cls.weight_sources:
+    for field in config_class.weight_sources:
         recorded = payload.get("weight_sources", {}).get(field) or payload.get(field)
         config[field] = overrides.get(field) or recorded or config.get(field)
     try:
@@ -137,6 +186,8 @@ def load_agent(
     source field (e.g. ``{"clip_weights": "/other/path/RN50.pt"}``) to another one; a field the agent
     does not have is ignored. ``clip_weights`` is shorthand for that field.
     """
+    from cliport.agents.checkpoint import read_checkpoint
+
     overrides = dict(weights or {})
     if clip_weights is not None:
         overrides["clip_weights"] = clip_weights
@@ -144,6 +195,8 @@ def load_agent(
 
 
 __all__ = [
+    "AGENTS",
+    "AgentSpec",
     "agent_class",
     "agent_from_payload",
     "agent_names",
@@ -152,4 +205,6 @@ __all__ = [
     "make_agent",
     "make_config",
     "register_agent",
+    "resolve_agent",
+    "weight_fields",
 ]

@@ -3,37 +3,18 @@ DistilBERT sentence encoder in place of CLIP's two encoders (both frozen)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
-from cliport.agents.config import LanguageConfig
+from cliport.agents.config import RN50BERTConfig
 from cliport.agents.registry import register_agent
 from cliport.agents.two_stream import TwoStreamAgent
 from cliport.models.encoders.base import FrozenEncoder
 from cliport.models.encoders.rn50_bert_encoder import load_rn50_bert
 
 
-@dataclass
-class RN50BERTConfig(LanguageConfig):
-    """Settings of the RN50-BERT agent; as :class:`LanguageConfig` plus
-
-    Args:
-        rn50_weights: "imagenet" (torchvision's ImageNet weights: torch's hub cache, else download), a local
-            torchvision resnet50 state-dict file, or "random" (seeded; tests and benchmarks only).
-        bert_weights: "distilbert-base-uncased" (or another Hugging Face DistilBERT repo id: the HF cache,
-            else download), a local folder written by save_pretrained (model + tokenizer), or "random"
-            (seeded, with a word-hashing tokenizer; tests and benchmarks only).
-    """
-
-    rn50_weights: str
-    bert_weights: str
-
-
-@register_agent("rn50_bert", RN50BERTConfig)
+@register_agent("rn50_bert")
 class RN50BERTAgent(TwoStreamAgent):
     """CLIPort's two-stream nets over a frozen ImageNet ResNet-50 and DistilBERT (one instance shared);
     each net's decoder projects the 768-wide sentence feature to 1024 (trainable) before its gates."""
 
-    weight_sources = ("rn50_weights", "bert_weights")
     published_columns = {"cliport_table1_test": "rn50_bert"}
 
     def __init__(self, config: RN50BERTConfig, encoder: FrozenEncoder | None = None) -> None:

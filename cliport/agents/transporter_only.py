@@ -9,7 +9,7 @@ from cliport.models.heads import PLACE_FEATURES, PickHead, PlaceHead
 from cliport.models.transporter import TransporterNet
 
 
-@register_agent("transporter_only", AgentConfig)
+@register_agent("transporter_only")
 class TransporterOnlyAgent(PickPlaceAgent):
     """Pick: 1-channel ResNet43_8s over the square-padded input. Place: 3-channel key and query nets."""
 

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from typing import ClassVar
-
 from cliport.agents.base import PickPlaceAgent
 from cliport.agents.config import CLIPConfig, LanguageConfig
 from cliport.agents.registry import register_agent
@@ -13,12 +11,11 @@ from cliport.models.heads import PLACE_FEATURES, PickHead, PlaceHead
 from cliport.models.two_stream import TwoStreamNet
 
 
-@register_agent("two_stream", CLIPConfig)
+@register_agent("two_stream")
 class TwoStreamAgent(PickPlaceAgent):
     """Pick net fuses its streams by addition, key and query nets by ReLU + 1x1 conv; one shared CLIP."""
 
     uses_language = True
-    weight_sources: ClassVar[tuple[str, ...]] = ("clip_weights",)
     published_columns = {"cliport_table6_val_ravens": "cliport_wo_lang", "cliport_table1_test": "cliport_single"}
 
     def __init__(self, config: LanguageConfig, encoder: FrozenEncoder | None = None) -> None:

@@ -78,10 +78,10 @@ class OneLineParser(argparse.ArgumentParser):
 
 
 def weight_fields() -> list[str]:
-    """The pretrained-weight config fields of all registered agents (``clip_weights``, ...), each once."""
-    from cliport.agents import agent_class, agent_names
+    """The pretrained-weight config fields of all agents (``clip_weights``, ...), each once (no agent imported)."""
+    from cliport.agents.registry import weight_fields as fields
 
-    return list(dict.fromkeys(f for name in agent_names() for f in agent_class(name).weight_sources))
+    return fields()
 
 
 def add_weight_flags(parser: argparse.ArgumentParser) -> None:

@@ -16,8 +16,8 @@ from cliport.errors import ConfigError
 
 
 def _parser() -> tuple[argparse.ArgumentParser, list[str]]:
-    from cliport.agents import agent_names, config_classes
-    from cliport.study import StudyConfig
+    from cliport.agents.registry import agent_names, config_classes
+    from cliport.study.config import StudyConfig
     from cliport.utils.config import add_flags
 
     parser = OneLineParser(

@@ -10,8 +10,10 @@ the correspondence both ways (a missing, extra or differently shaped tensor is a
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-import torch
+if TYPE_CHECKING:  # the names are read without torch (cliport-convert --help)
+    import torch
 
 #: Our agent name -> the reference's agent names (the first is its registry's preferred one).
 REFERENCE_AGENTS: dict[str, tuple[str, ...]] = {

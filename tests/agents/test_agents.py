@@ -92,7 +92,7 @@ def test_registry_and_default_configs() -> None:
     assert make_config("clip_only").semantic_encoder == "RN50-quickgelu"
     with pytest.raises(UnknownNameError, match="unknown agent 'two_steam' \\(did you mean 'two_stream'\\?\\)"):
         make_agent("two_steam")
-    with pytest.raises(ConfigError, match="unknown AgentConfig key\\(s\\) 'n_rotation' \\(did you mean 'n_rotations'"):
+    with pytest.raises(ConfigError, match="transporter_only has no setting\\(s\\) n_rotation \\(did you mean 'n_rot"):
         make_config("transporter_only", {"n_rotation": 3})
     with pytest.raises(ConfigError, match="n_rotations must be int, got 'x'"):
         make_config("transporter_only", {"n_rotations": "x"})
