@@ -32,6 +32,10 @@ class RunDirError(UserError, ValueError):
     """A run folder cannot be used as asked (not a run, nothing to resume, already holds a run)."""
 
 
+class TrainError(RunDirError):
+    """A training run cannot start or resume as asked; the message says why."""
+
+
 class DemoImportError(UserError, ValueError):
     """A source folder, file or image of a demonstration import (``cliport-import``) is unusable; the message
     names the episode, step and field, or the file."""

@@ -256,7 +256,7 @@ def run_reference(args: argparse.Namespace, agents: list[str]) -> dict[str, Any]
 
 def _reference_path(args: argparse.Namespace) -> str:
     # ref_bench.py puts its own folder and stubs first; the packages it needs (torch, numpy, ...) come from
-    # PYTHONPATH entries that are not this project's checkout (a GPU session installs them into a --target).
+    # PYTHONPATH entries that are not this project's checkout (packages installed with pip --target, say).
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     kept = [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p and os.path.abspath(p) != root]
     return os.pathsep.join([args.reference_dir, os.path.join(args.reference_dir, "stubs"), *kept])

@@ -52,7 +52,7 @@ def main(argv: list[str] | None = None) -> None:
     from cliport.env.environment import RENDERER_KINDS, EnvConfig
     from cliport.evaluation.engine import EvalEngine, resolve_workers
     from cliport.evaluation.evaluate import EvalConfig, evaluate
-    from cliport.train.trainer import load_run_config
+    from cliport.train.config import load_run_config
     from cliport.utils.config import given_flags, load
     from cliport.utils.device import resolve_device
     from cliport.utils.files import read_json, write_json

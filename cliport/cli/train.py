@@ -2,7 +2,9 @@
 
 Every flag is a field of the train config (``cliport.train.config.TrainConfig``), of the agents' configs
 or of the workcell config; defaults come from ``configs/train.toml``, ``configs/<agent>.toml`` and
-``configs/env.toml``, and the run saves its resolved config as ``RUN/config.json``.
+``configs/env.toml``, and the run saves its resolved config as ``RUN/config.json``. An agent flag the chosen
+agent does not have (``--clip-weights`` for transporter_only) is an error, as in ``TrainConfig.build``. Building
+the parser (and ``--help``) imports no agent and no torch.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ if TYPE_CHECKING:
 
 
 def _parser() -> tuple[argparse.ArgumentParser, list[str]]:
-    from cliport.agents import agent_names, config_classes
+    from cliport.agents.registry import agent_names, config_classes
     from cliport.env.config import EnvConfig
     from cliport.train.config import TrainConfig
     from cliport.utils.config import add_flags
@@ -49,25 +51,12 @@ def _parser() -> tuple[argparse.ArgumentParser, list[str]]:
 
 def config_from_args(args: argparse.Namespace, dests: list[str]) -> TrainConfig:
     """The resolved TrainConfig: defaults (or the resumed run's saved config) updated with the given flags."""
-    from cliport.train.config import TrainConfig
-    from cliport.train.trainer import load_run_config
+    from cliport.train.config import TrainConfig, load_run_config
     from cliport.utils.config import given_flags, merge
 
     given: dict[str, Any] = given_flags(args, dests)
     if args.resume and "run_dir" in given:
         given.setdefault("agent", load_run_config(given["run_dir"]).agent)
-    if "agent_config" in given:
-        # The agent flags are those of every agent; drop (and name) the ones this agent does not have.
-        from dataclasses import fields
-
-        from cliport.agents import agent_class
-        from cliport.utils.config import read_defaults
-
-        agent = given.get("agent") or read_defaults("train")["agent"]
-        own = {f.name for f in fields(agent_class(agent).config_class)}
-        for key in sorted(set(given["agent_config"]) - own):
-            print(f"note: {agent} has no setting {key}; --{key.replace('_', '-')} is ignored", file=sys.stderr)
-            del given["agent_config"][key]
     options = parse_key_values(args.agent_option, "--agent-option")
     given = merge(given, {"agent_config": options}) if options else given
     if args.resume:

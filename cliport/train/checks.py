@@ -65,3 +65,9 @@ class CheckCurve:
         if best is not None:
             data.update(best_step=best["step"], best_score=best["score"])
         write_json(self.path, data)
+
+
+def check_line(row: dict[str, Any], best: bool) -> str:
+    """The line a check prints: its step, its numbers, the seconds it took and whether it is the best so far."""
+    numbers = ", ".join(f"{k} {v}" for k, v in row.items() if k not in ("step", "score", "seconds"))
+    return f"check at step {row['step']}: {numbers} ({row['seconds']:.0f} s){'; the best so far' if best else ''}"

@@ -1,18 +1,22 @@
-"""The training config: run settings with the agent's and the workcell's settings nested inside."""
+"""The training config: run settings with the agent's and the workcell's settings nested inside, and the saved
+config of a run folder (:func:`load_run_config`). Nothing here imports an agent or torch: the console scripts'
+flags and ``--help`` come from these classes, and evaluation reads a run's config without the trainer."""
 
 from __future__ import annotations
 
-import dataclasses
 import os
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from cliport.agents import AgentConfig, agent_class
+from cliport.agents.config import AgentConfig
+from cliport.agents.registry import resolve_agent
 from cliport.env.config import EnvConfig
-from cliport.errors import ConfigError
+from cliport.errors import ConfigError, RunDirError
 from cliport.train.recipes import Recipe, get_recipe, recipe_names
 from cliport.utils.config import defaults_file, from_dict, merge, read_defaults, to_dict
+from cliport.utils.files import read_json
+from cliport.utils.run_dir import RunDir
 
 
 @dataclass
@@ -112,24 +116,18 @@ class TrainConfig:
     def build(cls, overrides: Mapping[str, Any] | None = None, base: Mapping[str, Any] | None = None) -> TrainConfig:
         """``base`` (default: configs/train.toml) updated with ``overrides`` (nested dicts), checked.
 
-        The agent's settings start from ``configs/<agent>.toml`` and the workcell's from ``configs/env.toml``.
+        The agent's settings start from ``configs/<agent>.toml`` and the workcell's from ``configs/env.toml``; an
+        agent setting the agent does not have is a ConfigError (:func:`~cliport.agents.registry.resolve_agent`).
         """
         source = "saved config" if base is not None else defaults_file("train")
         data = merge(dict(base) if base is not None else read_defaults("train"), overrides or {})
-        name = data.get("agent")
-        if not isinstance(name, str):
-            raise ConfigError(f"{source}: agent must be an agent name, got {name!r}")
-        agent_cls = agent_class(name)
-        known = {f.name for f in dataclasses.fields(agent_cls.config_class)}
-        unknown = sorted(set(data.get("agent_config", {})) - known)
-        if unknown:
-            raise ConfigError(
-                f"agent {name} has no setting(s) {', '.join(unknown)} (its settings: {', '.join(sorted(known))})"
-            )
+        if not isinstance(data.get("agent"), str):
+            raise ConfigError(f"{source}: agent must be an agent name, got {data.get('agent')!r}")
+        agent = resolve_agent(data["agent"], data.get("agent_config", {}))
         if base is None:
-            data["agent_config"] = merge(read_defaults(name), data.get("agent_config", {}))
+            data["agent_config"] = merge(read_defaults(agent.name), agent.overrides)
             data["env"] = merge(read_defaults("env"), data.get("env", {}))
-        config = from_dict(cls, data, source, nested={"agent_config": agent_cls.config_class})
+        config = from_dict(cls, data, source, nested={"agent_config": agent.config_class})
         config.validate()
         if config.training_recipe().encoder_norms == "train" and hasattr(config.agent_config, "per_net_clip_stats"):
             # Training CLIP's batch norms needs each net's own statistics, saved with its weights.
@@ -179,10 +177,22 @@ class TrainConfig:
             raise ConfigError(f"unknown recipe {self.recipe!r}; choose one of {', '.join(recipe_names())}")
 
     def resolved_run_dir(self) -> str:
+        """The run folder: ``run_dir``, or ``runs/TASK-AGENT-nN-sSEED`` when it is empty."""
         return self.run_dir or os.path.join("runs", f"{self.task}-{self.agent}-n{self.n_demos}-s{self.seed}")
 
     def to_dict(self) -> dict[str, Any]:
+        """The config as nested plain dicts (what ``RUN/config.json`` holds)."""
         return to_dict(self)
+
+
+def load_run_config(run_dir: str) -> TrainConfig:
+    """The resolved config a run saved (any layout version); RunDirError if the folder is not a run."""
+    run = RunDir(run_dir)
+    if not os.path.isdir(run_dir):
+        raise RunDirError(f"run folder not found: {run_dir}")
+    if not run.is_run():
+        raise RunDirError(f"{run_dir} is not a training run (no config.json)")
+    return TrainConfig.from_saved(read_json(run.config))
 
 
 def upgrade_saved_config(data: Mapping[str, Any]) -> dict[str, Any]:

@@ -23,15 +23,15 @@ import os
 import re
 import shutil
 from dataclasses import dataclass
-from typing import Any
-
-import torch
+from typing import TYPE_CHECKING, Any
 
 from cliport.errors import CheckpointError, ConfigError, RunDirError
 from cliport.models import reference_names
 from cliport.utils.files import save_torch, write_json
 from cliport.utils.run_dir import RunDir
-from cliport.utils.safe_pickle import load_torch_checkpoint
+
+if TYPE_CHECKING:  # imported where used: cliport-convert --help reads the names and counts above without torch
+    import torch
 
 #: The reference's agent names we can convert, and ours.
 SUPPORTED: dict[str, str] = {ref: ours for ours, refs in reference_names.REFERENCE_AGENTS.items() for ref in refs}
@@ -76,6 +76,10 @@ def _sha256(path: str) -> str:
 def read_reference_checkpoint(path: str) -> ReferenceCheckpoint:
     """The reference checkpoint at ``path``; a one-line :class:`CheckpointError` (or the safe loader's
     errors) when it cannot be read or is not a CLIPort checkpoint."""
+    import torch
+
+    from cliport.utils.safe_pickle import load_torch_checkpoint
+
     payload = load_torch_checkpoint(path)
     state = payload.get("state_dict") if isinstance(payload, dict) else None
     if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
@@ -148,6 +152,8 @@ def _is_stat(name: str) -> bool:
 
 def _check_clip(path: str, copies: list[dict[str, torch.Tensor]], encoder: Any, source: str) -> None:
     """The copies' weights are one frozen CLIP, and the one the run loads from ``source``."""
+    import torch
+
     first = copies[0]
     if not first:
         raise CheckpointError(f"{path} holds no CLIP weights (clip_rn50.*) for its nets")
@@ -215,6 +221,8 @@ def convert_checkpoint(
 def _write_run(
     ckpt: ReferenceCheckpoint, detected: str, run: RunDir, task: str, n_demos: int, n_rotations: int, clip_weights: str
 ) -> dict[str, Any]:
+    import torch
+
     from cliport.agents import make_agent
     from cliport.train.config import TrainConfig
 

@@ -13,7 +13,7 @@ from cliport.agents import make_agent
 from cliport.env.heightmap import heightmap_shape
 from cliport.train.config import TrainConfig
 from cliport.train.graphed_step import TrainStep
-from cliport.train.trainer import autocast_dtype
+from cliport.train.step_loop import autocast_dtype
 from cliport.utils.device import resolve_device
 
 #: Two instructions, so that an agent centring its sentence features has a mean to centre on.

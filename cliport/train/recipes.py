@@ -13,13 +13,16 @@ momentum at a rate of lr / (eps * cells) on the cross-entropy, instead of Adam's
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-import torch
-
-from cliport.agents.base import PickPlaceAgent
 from cliport.data.augment import INTERPOLATIONS, PIVOTS
 from cliport.errors import ConfigError, UnknownNameError
 from cliport.utils.config import from_dict, read_defaults
+
+if TYPE_CHECKING:  # recipes are read without torch (the training config, the console scripts' flags)
+    import torch
+
+    from cliport.agents.base import PickPlaceAgent
 
 #: Loss reductions: ``cell_mean``, the cross-entropy over each map divided by its cells (the reference CLIPort's
 #: ``cross_entropy_with_logits(reduction='mean')``); ``sample_ce``, the per-sample cross-entropy (Ravens').

@@ -22,6 +22,7 @@ from __future__ import annotations
 import os
 import re
 from dataclasses import dataclass
+from typing import Any
 
 CONFIG = "config.json"
 METRICS = "metrics.csv"
@@ -142,3 +143,15 @@ class RunDir:
     def has_progress(self) -> bool:
         """Whether training saved anything a resume could continue from."""
         return os.path.exists(self.checkpoint(LAST)) or bool(self.checkpoint_steps())
+
+
+def load_resume_state(path: str) -> dict[str, Any]:
+    """The trainer state saved in a run's ``checkpoints/last.pt`` (step, optimiser, RNG, seconds trained);
+    TrainError if the file holds none."""
+    from cliport.errors import TrainError
+    from cliport.utils.files import load_torch
+
+    payload = load_torch(path)
+    if "trainer" not in payload:
+        raise TrainError(f"{path} holds no trainer state")
+    return payload["trainer"]

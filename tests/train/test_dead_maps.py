@@ -78,7 +78,7 @@ def test_training_stops_when_the_place_map_goes_constant(
         return agent
 
     monkeypatch.setattr(agents, "make_agent", dead_key)
-    monkeypatch.setattr("cliport.train.trainer.DeadMapWatch", functools.partial(DeadMapWatch, patience=3))
+    monkeypatch.setattr("cliport.train.step_loop.DeadMapWatch", functools.partial(DeadMapWatch, patience=3))
     overrides = {
         "agent": "transporter_only", "task": "place-red-in-green", "n_demos": 2, "n_steps": 20, "batch_size": 1,
         "data_dir": str(tmp_path), "run_dir": str(tmp_path / "run"), "device": "cpu", "num_workers": 0,

@@ -137,7 +137,7 @@ def test_a_run_saved_on_cuda_resumes_on_the_cpu(tmp_path, make_synthetic_dataset
         seen["nchw"] = all(p.is_contiguous() for p in params)
         seen["fused"] = bool(optimizer.param_groups[0]["fused"]) and not optimizer.param_groups[0]["foreach"]
 
-    monkeypatch.setattr("cliport.train.trainer.load_optimizer_state", checked)
+    monkeypatch.setattr("cliport.train.resume.load_optimizer_state", checked)
     summary = train(TrainConfig.build({**overrides, "n_steps": 4}), resume=True, progress=False)
     assert seen == {"strides_match": True, "nchw": True, "fused": True}
     assert summary["steps"] == 4 and os.path.exists(RunDir(run_dir).checkpoint(4))

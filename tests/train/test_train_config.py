@@ -59,7 +59,7 @@ def test_user_errors_raised_in_loader_workers_come_back_as_one_line():
     from torch.utils.data import DataLoader, Dataset
 
     from cliport.data.episode_io import EpisodeFileError
-    from cliport.train.trainer import _batches, _next_batch
+    from cliport.train.step_loop import _batches, _next_batch
 
     class Broken(Dataset):
         def __len__(self) -> int:
@@ -71,3 +71,26 @@ def test_user_errors_raised_in_loader_workers_come_back_as_one_line():
     with pytest.raises(EpisodeFileError) as err:
         _next_batch(_batches(DataLoader(Broken(), batch_size=2, num_workers=1)))
     assert str(err.value) == "corrupt episode file /d/000002.npz: the 'color' array is damaged"
+
+
+def test_load_run_config_reads_a_runs_config_or_says_why_not(tmp_path):
+    from cliport.errors import RunDirError
+    from cliport.train.config import load_run_config
+    from cliport.utils.files import write_json
+
+    with pytest.raises(RunDirError, match="run folder not found"):
+        load_run_config(str(tmp_path / "nope"))
+    with pytest.raises(RunDirError, match="is not a training run \\(no config.json\\)"):
+        load_run_config(str(tmp_path))
+    config = TrainConfig.build({"task": "block-insertion", "agent": "transporter_only"})
+    write_json(tmp_path / "config.json", config.to_dict())
+    assert load_run_config(str(tmp_path)) == config
+
+
+def test_agent_settings_the_agent_lacks_are_named_once_with_its_settings():
+    with pytest.raises(ConfigError) as err:
+        TrainConfig.build({"task": "block-insertion", "agent": "transporter_only", "agent_config": {"clip_weight": 1}})
+    assert str(err.value) == (
+        "agent transporter_only has no setting(s) clip_weight; "
+        "its settings: crop_size, lr, map_scale, n_rotations, width"
+    )
