@@ -36,7 +36,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import pybullet_data
 
 from cliport.env import shapes
 from cliport.env.transforms import Pose, euler_to_quat, quat_to_matrix
@@ -190,7 +189,15 @@ def _heart() -> list[dict]:
 
 
 def _data(rel: str, size: float) -> Callable[[], list[dict]]:
-    return lambda: mesh_parts(os.path.join(pybullet_data.getDataPath(), rel), size)
+    """The parts of mesh ``rel`` of ``pybullet_data``, which is imported when the parts are made (training from
+    recorded demos loads this module through the task registry and needs no simulator)."""
+
+    def make() -> list[dict]:
+        import pybullet_data
+
+        return mesh_parts(os.path.join(pybullet_data.getDataPath(), rel), size)
+
+    return make
 
 
 # (name, parts factory, colour); every third entry is unseen.

@@ -12,8 +12,8 @@ BLOCK_PYBULLET = """
 import importlib.abc, sys
 class Block(importlib.abc.MetaPathFinder):
     def find_spec(self, name, path, target=None):
-        if name.split(".")[0] == "pybullet":
-            raise ImportError("pybullet is blocked in this test")
+        if name.split(".")[0] in ("pybullet", "pybullet_data"):
+            raise ImportError(f"{name} is blocked in this test")
 sys.meta_path.insert(0, Block())
 import cliport.train.trainer, cliport.cli.train
 from cliport.env.config import EnvConfig, expected_renderer
