@@ -18,7 +18,7 @@ from cliport.env.transforms import Pose, multiply, yaw_to_quat
 from cliport.tasks.base import GoalStep
 from cliport.tasks.colors import split_colors
 from cliport.tasks.kit_shapes import HEIGHT, SHAPES, ShapeTask, placed_pieces, prism_mesh, split_shapes
-from cliport.tasks.registry import register
+from cliport.tasks.registry import register, register_splits
 
 if TYPE_CHECKING:
     from cliport.env.environment import Environment
@@ -159,11 +159,6 @@ class AssemblingKitsSeq(KitTask):
         ]
 
 
-@register("assembling-kits-seq-seen-colors")
-class AssemblingKitsSeqSeenColors(AssemblingKitsSeq):
-    unseen = False
-
-
-@register("assembling-kits-seq-unseen-colors")
-class AssemblingKitsSeqUnseenColors(AssemblingKitsSeq):
-    unseen = True
+AssemblingKitsSeqSeenColors, AssemblingKitsSeqUnseenColors = register_splits(
+    AssemblingKitsSeq, "assembling-kits-seq-seen-colors", "assembling-kits-seq-unseen-colors"
+)

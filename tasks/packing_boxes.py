@@ -16,7 +16,7 @@ from cliport.env.transforms import Pose, at_height, multiply
 from cliport.tasks.base import GoalStep
 from cliport.tasks.colors import COLORS, split_colors
 from cliport.tasks.packing_assets import FLOOR_THICKNESS, ZoneOracleMixin, container, kd_split
-from cliport.tasks.registry import register
+from cliport.tasks.registry import register, register_splits
 
 if TYPE_CHECKING:
     from cliport.env.environment import Environment
@@ -169,11 +169,6 @@ class PackingBoxesPairs(PackingBoxesBase):
         return plan
 
 
-@register("packing-boxes-pairs-seen-colors")
-class PackingBoxesPairsSeen(PackingBoxesPairs):
-    unseen = False
-
-
-@register("packing-boxes-pairs-unseen-colors")
-class PackingBoxesPairsUnseen(PackingBoxesPairs):
-    unseen = True
+PackingBoxesPairsSeenColors, PackingBoxesPairsUnseenColors = register_splits(
+    PackingBoxesPairs, "packing-boxes-pairs-seen-colors", "packing-boxes-pairs-unseen-colors"
+)

@@ -21,7 +21,7 @@ from cliport.env.transforms import at_height, multiply
 from cliport.tasks.base import GoalStep
 from cliport.tasks.packing_assets import FLOOR_THICKNESS, ZoneOracleMixin, container, kd_split
 from cliport.tasks.packing_object_set import ObjectSpec, build_object, centred_parts, object_set, split_objects
-from cliport.tasks.registry import register
+from cliport.tasks.registry import register_splits
 
 if TYPE_CHECKING:
     from cliport.env.environment import Environment
@@ -153,21 +153,11 @@ class PackingObjectsGroup(PackingObjects):
         ]
 
 
-@register("packing-seen-objects-seq")
-class PackingSeenObjectsSeq(PackingObjectsSeq):
-    unseen = False
+PackingSeenObjectsSeq, PackingUnseenObjectsSeq = register_splits(
+    PackingObjectsSeq, "packing-seen-objects-seq", "packing-unseen-objects-seq"
+)
 
 
-@register("packing-unseen-objects-seq")
-class PackingUnseenObjectsSeq(PackingObjectsSeq):
-    unseen = True
-
-
-@register("packing-seen-objects-group")
-class PackingSeenObjectsGroup(PackingObjectsGroup):
-    unseen = False
-
-
-@register("packing-unseen-objects-group")
-class PackingUnseenObjectsGroup(PackingObjectsGroup):
-    unseen = True
+PackingSeenObjectsGroup, PackingUnseenObjectsGroup = register_splits(
+    PackingObjectsGroup, "packing-seen-objects-group", "packing-unseen-objects-group"
+)

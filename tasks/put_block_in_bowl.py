@@ -11,7 +11,7 @@ from cliport.env.transforms import at_height
 from cliport.tasks.base import GoalStep, Task
 from cliport.tasks.blocks_assets import BLOCK, BOWL, BOWL_TOLERANCE
 from cliport.tasks.colors import COLORS, split_colors
-from cliport.tasks.registry import register
+from cliport.tasks.registry import register_splits
 
 if TYPE_CHECKING:
     from cliport.env.environment import Environment
@@ -95,11 +95,6 @@ class _PutBlockInBowl(Task):
         return [self.colors_step(*pairs[int(k)]) for k in rng.permutation(len(pairs))]
 
 
-@register("put-block-in-bowl-seen-colors")
-class PutBlockInBowlSeenColors(_PutBlockInBowl):
-    unseen = False
-
-
-@register("put-block-in-bowl-unseen-colors")
-class PutBlockInBowlUnseenColors(_PutBlockInBowl):
-    unseen = True
+PutBlockInBowlSeenColors, PutBlockInBowlUnseenColors = register_splits(
+    _PutBlockInBowl, "put-block-in-bowl-seen-colors", "put-block-in-bowl-unseen-colors"
+)

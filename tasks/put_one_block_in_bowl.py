@@ -18,7 +18,7 @@ from cliport.env.transforms import at_height
 from cliport.tasks.base import GoalStep, Task
 from cliport.tasks.blocks_assets import BLOCK, BOWL, BOWL_TOLERANCE
 from cliport.tasks.colors import COLORS, split_colors
-from cliport.tasks.registry import register
+from cliport.tasks.registry import register_splits
 
 if TYPE_CHECKING:
     from cliport.env.environment import Environment
@@ -108,11 +108,6 @@ class _PutOneBlockInBowl(Task):
         return TEMPLATE.format(block, bowl)
 
 
-@register("put-one-block-in-bowl-seen-colors")
-class PutOneBlockInBowlSeenColors(_PutOneBlockInBowl):
-    unseen = False
-
-
-@register("put-one-block-in-bowl-unseen-colors")
-class PutOneBlockInBowlUnseenColors(_PutOneBlockInBowl):
-    unseen = True
+PutOneBlockInBowlSeenColors, PutOneBlockInBowlUnseenColors = register_splits(
+    _PutOneBlockInBowl, "put-one-block-in-bowl-seen-colors", "put-one-block-in-bowl-unseen-colors"
+)

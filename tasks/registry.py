@@ -38,6 +38,19 @@ def register(name: str) -> Callable[[type[_Task]], type[_Task]]:
     return wrap
 
 
+def register_splits(base: type[_Task], seen: str, unseen: str) -> tuple[type[_Task], type[_Task]]:
+    """Register ``base``'s two splits: ``seen`` (``unseen = False``: the training colours or objects) and
+    ``unseen`` (``unseen = True``: the held-out ones at test time). The classes are named after the tasks
+    (``put-block-in-bowl-seen-colors`` -> ``PutBlockInBowlSeenColors``) in ``base``'s module; assign them
+    to those names there so that they pickle."""
+    made: list[type[_Task]] = []
+    for name, held_out in ((seen, False), (unseen, True)):
+        title = "".join(part.capitalize() for part in name.split("-"))
+        cls = type(title, (base,), {"unseen": held_out, "__module__": base.__module__, "__qualname__": title})
+        made.append(register(name)(cls))
+    return made[0], made[1]
+
+
 def register_group(name: str, members: list[str]) -> None:
     """Name a list of tasks (a multi-task group) usable wherever a task name is."""
     _GROUPS[name] = list(members)

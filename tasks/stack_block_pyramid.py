@@ -18,7 +18,7 @@ from cliport.tasks.blocks_assets import (
     pyramid_targets,
 )
 from cliport.tasks.colors import COLORS, split_colors
-from cliport.tasks.registry import register
+from cliport.tasks.registry import register, register_splits
 
 if TYPE_CHECKING:
     from cliport.env.environment import Environment
@@ -128,11 +128,6 @@ class _StackBlockPyramidSeq(_PyramidScene):
         ]
 
 
-@register("stack-block-pyramid-seq-seen-colors")
-class StackBlockPyramidSeqSeenColors(_StackBlockPyramidSeq):
-    unseen = False
-
-
-@register("stack-block-pyramid-seq-unseen-colors")
-class StackBlockPyramidSeqUnseenColors(_StackBlockPyramidSeq):
-    unseen = True
+StackBlockPyramidSeqSeenColors, StackBlockPyramidSeqUnseenColors = register_splits(
+    _StackBlockPyramidSeq, "stack-block-pyramid-seq-seen-colors", "stack-block-pyramid-seq-unseen-colors"
+)

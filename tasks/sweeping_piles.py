@@ -18,7 +18,7 @@ from cliport.env.primitives import PushSettings
 from cliport.env.transforms import Pose, apply, at_height, invert, yaw_to_quat
 from cliport.tasks.base import GoalStep, Task
 from cliport.tasks.colors import COLORS, split_colors
-from cliport.tasks.registry import register
+from cliport.tasks.registry import register, register_splits
 
 if TYPE_CHECKING:
     from cliport.env.environment import Environment
@@ -220,11 +220,6 @@ class SeparatingPiles(PileTask):
         return [self.square_step(zones[int(k)]) for k in rng.permutation(len(zones))]
 
 
-@register("separating-piles-seen-colors")
-class SeparatingPilesSeenColors(SeparatingPiles):
-    unseen = False
-
-
-@register("separating-piles-unseen-colors")
-class SeparatingPilesUnseenColors(SeparatingPiles):
-    unseen = True
+SeparatingPilesSeenColors, SeparatingPilesUnseenColors = register_splits(
+    SeparatingPiles, "separating-piles-seen-colors", "separating-piles-unseen-colors"
+)

@@ -19,7 +19,7 @@ from cliport.tasks.blocks_assets import (
     stand_parts,
 )
 from cliport.tasks.colors import COLORS, split_colors
-from cliport.tasks.registry import register
+from cliport.tasks.registry import register, register_splits
 
 if TYPE_CHECKING:
     from cliport.env.environment import Environment
@@ -105,11 +105,6 @@ class _TowersOfHanoiSeq(_TowersScene):
         return list(self.goals)
 
 
-@register("towers-of-hanoi-seq-seen-colors")
-class TowersOfHanoiSeqSeenColors(_TowersOfHanoiSeq):
-    unseen = False
-
-
-@register("towers-of-hanoi-seq-unseen-colors")
-class TowersOfHanoiSeqUnseenColors(_TowersOfHanoiSeq):
-    unseen = True
+TowersOfHanoiSeqSeenColors, TowersOfHanoiSeqUnseenColors = register_splits(
+    _TowersOfHanoiSeq, "towers-of-hanoi-seq-seen-colors", "towers-of-hanoi-seq-unseen-colors"
+)

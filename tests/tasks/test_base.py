@@ -136,6 +136,15 @@ def test_registry_errors():
         tasks.make("place-red-in-green", mode="training")
 
 
+def test_splits_register_both_colour_sets_as_picklable_classes():
+    import pickle
+
+    seen, unseen = tasks.make("towers-of-hanoi-seq-seen-colors"), tasks.make("towers-of-hanoi-seq-unseen-colors")
+    assert (seen.unseen, unseen.unseen) == (False, True)
+    assert type(unseen).__name__ == "TowersOfHanoiSeqUnseenColors" and type(seen).__bases__ == type(unseen).__bases__
+    assert pickle.loads(pickle.dumps(type(unseen))) is type(unseen)
+
+
 def test_groups_name_registered_tasks():
     groups = tasks.groups()
     assert len(groups["multi-ravens"]) == 10 and len(groups["multi-language-conditioned"]) == 18
