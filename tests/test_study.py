@@ -84,6 +84,7 @@ def test_ceiling_column_pairs_side_by_side_and_their_plot(tmp_path, monkeypatch)
     ]
     table = combined_table(both)
     assert "| assembling-kits | - | 80.0* / 90.4 |" in table  # no instruction, no ceiling
+    assert "| assembling-kits | 80.0* / 90.4 |" in combined_table(both[:1])  # no ceiling in the table, no column
     assert "| assembling-kits-seq-seen-colors | 47.9 | 30.0* / - |" in table
     assert (
         "| transporter_only | ravens | 100 | assembling-kits | 80.0* | assembling-kits-seq-seen-colors | 30.0* | 47.9 |"

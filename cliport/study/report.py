@@ -238,17 +238,20 @@ def combined_table(all_results: list[dict[str, Any]]) -> str:
         found = blind_ceiling(task)
         return "-" if found is None else f"{found['score']:.1f}"
 
-    lines[-1] += (
-        " The blind ceiling is the best an agent that ignores the instruction can score (- where the instruction "
-        "does not change what must be done; docs/results/blind-ceilings.md)."
-    )
+    with_ceiling = any(blind_ceiling(r["task"]) is not None for r in all_results)
+    if with_ceiling:
+        lines[-1] += (
+            " The blind ceiling is the best an agent that ignores the instruction can score (- where the instruction "
+            "does not change what must be done; docs/results/blind-ceilings.md)."
+        )
     for (agent, recipe), tasks in blocks.items():
         lines += ["", f"## {agent}, {recipe or '-'} recipe", ""]
         demos = " | ".join(f"{n} demo{'s' if n != 1 else ''}" for n in counts)
-        lines.append(f"| task | blind ceiling | {demos} |")
-        lines.append("|---|---|" + "---|" * len(counts))
+        lines.append(f"| task | {'blind ceiling | ' if with_ceiling else ''}{demos} |")
+        lines.append("|---|" + ("---|" if with_ceiling else "") + "---|" * len(counts))
         for task, rows in tasks.items():
-            lines.append(f"| {task} | {ceiling(task)} | " + " | ".join(fmt(rows.get(n)) for n in counts) + " |")
+            first = f"| {task} | " + (f"{ceiling(task)} | " if with_ceiling else "")
+            lines.append(first + " | ".join(fmt(rows.get(n)) for n in counts) + " |")
     pairs = task_pairs([r["task"] for r in all_results])
     if pairs:
         lines += [
