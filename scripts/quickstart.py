@@ -40,11 +40,17 @@ from cliport.errors import ConfigError, RunDirError
 from cliport.evaluation.evaluate import evaluate
 from cliport.evaluation.free_form import run_instruction
 from cliport.evaluation.held_out import HeldOutCheck, record_scenes
-from cliport.evaluation.instruction_following import instruction_following, scene_instruction, two_instructions_figure
-from cliport.train.config import TrainConfig
+from cliport.evaluation.instruction_following import (
+    instruction_following,
+    lesson_task,
+    scene_instruction,
+    two_instructions_figure,
+)
+from cliport.pretrain.transfer import colour_report
+from cliport.train.config import TrainConfig, load_run_config
 from cliport.train.probe import step_seconds
 from cliport.train.recipes import recipe_names
-from cliport.train.trainer import load_run_config, train
+from cliport.train.trainer import train
 from cliport.utils.config import device_defaults
 from cliport.utils.files import read_json, write_json
 from cliport.utils.run_dir import RunDir
@@ -69,6 +75,19 @@ def parse_args(device: str) -> Any:
         default=setting.get("clip_weights", "auto"),
         help="CLIP's weights for agents that use CLIP: 'auto' (the published ones where they can be had, "
         "else seeded random ones, said and recorded), 'openai', 'random' or a file",
+    )
+    parser.add_argument(
+        "--semantic-encoder",
+        default=setting.get("semantic_encoder"),
+        help="the open_clip model of the agent's CLIP (default: the agent's, RN50-quickgelu); e.g. cliport-RN-tiny "
+        "with --clip-weights FILE from cliport-pretrain, or --clip-weights random (docs/pretraining.md)",
+    )
+    parser.add_argument(
+        "--test-task",
+        action="append",
+        default=[],
+        help="also test on this put-one-block-in-bowl-* task (e.g. put-one-block-in-bowl-unseen-colors), split by "
+        "whether the colours named are unseen; repeatable",
     )
     parser.add_argument(
         "--out",
@@ -162,6 +181,8 @@ def parse_args(device: str) -> Any:
     if args.pair_contrasts is None:  # on by default where there are a scene's instructions to pair
         args.pair_contrasts = bool(setting.get("pair_contrasts", False)) and args.every_instruction
     tasks.resolve(args.task)
+    for name in args.test_task:
+        lesson_task(name, "test", "--test-task")
     if args.center_sentences and not agent_class(args.agent).uses_language:
         print(f"note: {args.agent} reads no instruction, so there are no sentence features to centre", file=sys.stderr)
         args.center_sentences = False
@@ -174,9 +195,10 @@ def resolve_clip_weights(args: Any) -> str | None:
         return None
     if args.clip_weights != "auto":
         return args.clip_weights
+    from cliport.models.encoders.clip_registry import MODEL_NAME
     from cliport.models.encoders.clip_weights import published_weights_available
 
-    if published_weights_available():
+    if published_weights_available(model_name=getattr(args, "semantic_encoder", None) or MODEL_NAME):
         return "openai"
     print(
         "CLIP weights: the published ones cannot be had here (not in the Hugging Face cache, no network), so this "
@@ -194,6 +216,8 @@ def train_config(
         agent_config["lr"] = args.lr
     if clip is not None:
         agent_config["clip_weights"] = clip
+        if args.semantic_encoder:
+            agent_config["semantic_encoder"] = args.semantic_encoder
     if agent_class(args.agent).uses_language:
         agent_config["center_sentences"] = args.center_sentences
     config = TrainConfig.build(
@@ -328,6 +352,14 @@ def main() -> None:
         seeds = [row["seed"] for row in result["episodes"]][: args.swap_scenes]
         following = instruction_following(agent, args.task, seeds, args.camera_scale)
         print(f"    instruction following: {following['followed']} of {following['n']} swapped instructions")
+    other_tests = {}
+    for name in args.test_task:
+        other_tests[name] = colour_report(agent, name, args.episodes, args.swap_scenes, args.camera_scale)
+        other_solved, unseen = other_tests[name]["test"]["solved"], other_tests[name]["unseen_named"]
+        print(
+            f"    {name}: solved {other_solved} of {args.episodes}; naming an unseen colour: solved "
+            f"{unseen['solved']} of {unseen['episodes']}, swaps followed {unseen['followed']} of {unseen['swaps']}"
+        )
     timings["evaluation_s"] = time.perf_counter() - mark
     with contextlib.closing(summary_writer(os.path.join(run_dir, "eval", "tensorboard"))) as tensorboard:
         log_result(tensorboard, f"eval/{args.task}/test", result, trained["step"])  # beside training's curves
@@ -371,6 +403,7 @@ def main() -> None:
             "seed": args.seed,
             "init_draws": trained["init_draws"],
             "clip_weights": clip,
+            "semantic_encoder": args.semantic_encoder,
             "every_instruction": args.every_instruction,
             "pair_contrasts": args.pair_contrasts,
             "center_sentences": args.center_sentences,
@@ -385,11 +418,13 @@ def main() -> None:
     }
     if machine is not None:
         summary["machine"] = machine
+    if other_tests:
+        summary["other_tests"] = other_tests
     if following is not None:
         summary["instruction_following"] = {k: following[k] for k in ("rate", "n", "followed", "swaps")}
         summary["two_instructions"] = figure
     write_json(os.path.join(args.out, "results.json"), summary)
-    print(json.dumps({k: v for k, v in summary.items() if k != "instruction_following"}, indent=2))
+    print(json.dumps({k: v for k, v in summary.items() if k not in ("instruction_following", "other_tests")}, indent=2))
     low, high = result["success_ci95"]
     print(
         f"\nThe agent solved {len(solved)} of {result['n_episodes']} test episodes of {args.task} "

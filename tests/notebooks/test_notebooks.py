@@ -65,14 +65,16 @@ def run_notebook(name: str, **parameters) -> dict:
 def test_notebooks_exist():
     names = {os.path.basename(p) for p in NOTEBOOKS}
     assert {
-        "quickstart.ipynb", "language.ipynb", "affordances.ipynb", "dataset_explorer.ipynb", "reproduction_study.ipynb"
+        "quickstart.ipynb", "language.ipynb", "affordances.ipynb", "dataset_explorer.ipynb", "reproduction_study.ipynb",
+        "pretraining.ipynb",
     } <= names  # fmt: skip
 
 
 @pytest.mark.parametrize("name", [os.path.basename(p) for p in NOTEBOOKS])
 def test_notebook_runs(name, monkeypatch, tmp_path):
     monkeypatch.chdir(tmp_path)
-    run_notebook(name, **({"SMOKE": True} if name in ("quickstart.ipynb", "language.ipynb") else {}))
+    smoke = name in ("quickstart.ipynb", "language.ipynb", "pretraining.ipynb")
+    run_notebook(name, **({"SMOKE": True} if smoke else {}))
 
 
 def test_affordances_notebook_takes_a_converted_checkpoint(monkeypatch, tmp_path):

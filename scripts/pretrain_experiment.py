@@ -1,0 +1,151 @@
+"""Does pretraining buy colour transfer and data efficiency? The language lesson's agent with random against
+pretrained CLIP weights of one architecture, at several demo counts, tested on seen and unseen colours.
+
+Each cell runs ``scripts/quickstart.py --language`` (the lesson's settings: configs/quickstart.toml [language],
+its time budget included) on put-one-block-in-bowl-seen-colors with ``--demos N``, ``--semantic-encoder NAME`` and
+``--clip-weights`` random or the pretrained file, and ``--test-task put-one-block-in-bowl-unseen-colors``; then
+writes one JSON line to ``OUT/grid.jsonl``: solved and swapped instructions followed on the seen colours, and on
+the unseen split, all and only those naming an unseen colour. Cells share one demo folder (``OUT/demos``); a
+re-run skips finished cells and resumes an interrupted one (the quickstart resumes). Arguments this script does
+not know are passed to every quickstart run (``--minutes 5``, ``--episodes 40``, ...).
+
+    python scripts/pretrain_experiment.py --weights out/pretrain/open_clip_model.safetensors --out out/pretrain-grid
+
+The arm ``published`` (``--arms random pretrained published``) runs CLIPort's RN50 with its published weights
+(``--clip-weights openai``): where they can be had (the Hugging Face cache, or network).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from typing import Any
+
+from cliport.cli.common import OneLineParser, run_cli
+from cliport.errors import ConfigError
+from cliport.utils.files import read_json, write_text
+
+TRAIN_TASK = "put-one-block-in-bowl-seen-colors"
+TEST_TASK = "put-one-block-in-bowl-unseen-colors"
+ARMS = ("random", "pretrained", "published")
+QUICKSTART = os.path.join(os.path.dirname(os.path.abspath(__file__)), "quickstart.py")
+
+
+def parse_args() -> tuple[Any, list[str]]:
+    parser = OneLineParser(prog="pretrain_experiment.py", description=__doc__.splitlines()[0])
+    parser.add_argument("--weights", help="the pretrained encoder (cliport-pretrain's open_clip_model.safetensors)")
+    parser.add_argument(
+        "--semantic-encoder", help="its open_clip model (default: the one the weights file's metadata names)"
+    )
+    parser.add_argument("--arms", nargs="+", default=["random", "pretrained"], choices=ARMS)
+    parser.add_argument("--demos", nargs="+", type=int, default=[10, 30, 100], help="demo counts of the curve")
+    parser.add_argument("--seeds", nargs="+", type=int, default=[0], help="training seeds of each cell")
+    parser.add_argument("--out", default="out/pretrain-grid", help="cells, shared demos and grid.jsonl")
+    args, passthrough = parser.parse_known_args()
+    if any(n < 1 for n in args.demos):
+        raise ConfigError(f"--demos must all be at least 1, got {args.demos}")
+    if "pretrained" in args.arms:
+        if not args.weights or not os.path.isfile(args.weights):
+            raise ConfigError(f"the pretrained arm needs --weights FILE (from cliport-pretrain), got {args.weights}")
+        if args.semantic_encoder is None:
+            args.semantic_encoder = written_for(args.weights)
+    if args.semantic_encoder is None and "random" in args.arms:
+        raise ConfigError("the random arm needs --semantic-encoder NAME (or --weights, whose metadata names it)")
+    return args, passthrough
+
+
+def written_for(path: str) -> str:
+    """The open_clip model a cliport-pretrain weights file holds (its metadata); ConfigError if it says none."""
+    from cliport.models.encoders.clip_weights import MODEL_NAME_KEY
+    from cliport.pretrain.checkpoint import read_open_clip_metadata
+
+    name = read_open_clip_metadata(path).get(MODEL_NAME_KEY)
+    if not name:
+        raise ConfigError(f"{path} does not name its model (not written by cliport-pretrain): pass --semantic-encoder")
+    return name
+
+
+def arm_flags(arm: str, args: Any) -> list[str]:
+    """The quickstart flags of an arm: the same architecture for random and pretrained, CLIPort's for published."""
+    if arm == "published":
+        return ["--clip-weights", "openai"]
+    weights = "random" if arm == "random" else os.path.abspath(args.weights)
+    return ["--clip-weights", weights, "--semantic-encoder", args.semantic_encoder]
+
+
+def cell_line(arm: str, n_demos: int, seed: int, results: dict[str, Any], seconds: float | None) -> dict[str, Any]:
+    """One cell's JSON line from its quickstart results.json."""
+    training = results["training"]
+    following = results.get("instruction_following") or {}
+    unseen = results["other_tests"][TEST_TASK]
+    return {
+        "arm": arm,
+        "demos": n_demos,
+        "seed": seed,
+        "clip_weights": training["clip_weights"],
+        "semantic_encoder": training.get("semantic_encoder"),
+        "steps": training["steps"],
+        "tested_step": training["tested_step"],
+        "seen": {
+            "task": results["task"],
+            "solved": results["solved"],
+            "episodes": results["test"]["n_episodes"],
+            "followed": following.get("followed"),
+            "swaps": following.get("n"),
+        },
+        "unseen": {k: unseen[k] for k in ("task", "test", "following", "unseen_named", "seen_named", "scenes")},
+        "minutes": round(results["seconds"]["total_s"] / 60, 1),
+        "wall_minutes": None if seconds is None else round(seconds / 60, 1),
+        "results": results["_path"],
+    }
+
+
+def write_grid(path: str, lines: dict[str, dict[str, Any]]) -> None:
+    write_text(path, "".join(json.dumps(line) + "\n" for line in lines.values()))
+
+
+def main() -> None:
+    args, passthrough = parse_args()
+    demos = os.path.abspath(os.path.join(args.out, "demos"))
+    os.makedirs(demos, exist_ok=True)
+    grid_path = os.path.join(args.out, "grid.jsonl")
+    lines: dict[str, dict[str, Any]] = {}
+    if os.path.exists(grid_path):
+        with open(grid_path) as f:
+            for row in (json.loads(text) for text in f if text.strip()):
+                lines[f"{row['arm']}-n{row['demos']}-s{row['seed']}"] = row
+    cells = [(arm, n, seed) for n in sorted(args.demos) for arm in args.arms for seed in args.seeds]
+    for k, (arm, n_demos, seed) in enumerate(cells, 1):
+        name = f"{arm}-n{n_demos}-s{seed}"
+        if name in lines:
+            print(f"[{k}/{len(cells)}] {name}: done before", flush=True)
+            continue
+        cell = os.path.join(args.out, "cells", name)
+        os.makedirs(cell, exist_ok=True)
+        if not os.path.lexists(os.path.join(cell, "data")):
+            os.symlink(demos, os.path.join(cell, "data"))  # every cell reads the first N of the shared demos
+        command = [sys.executable, QUICKSTART, "--language", "--task", TRAIN_TASK, "--test-task", TEST_TASK]
+        command += ["--demos", str(n_demos), "--seed", str(seed), "--out", cell, *arm_flags(arm, args), *passthrough]
+        print(f"[{k}/{len(cells)}] {name}: {' '.join(command[1:])}", flush=True)
+        start = time.perf_counter()
+        done = subprocess.run(command)
+        if done.returncode != 0:
+            raise SystemExit(f"error: cell {name} failed (exit status {done.returncode}); a re-run resumes it")
+        results = {**read_json(os.path.join(cell, "results.json")), "_path": os.path.join(cell, "results.json")}
+        lines[name] = cell_line(arm, n_demos, seed, results, time.perf_counter() - start)
+        write_grid(grid_path, lines)
+    for row in lines.values():
+        seen, unseen = row["seen"], row["unseen"]["unseen_named"]
+        print(
+            f"{row['arm']:>10} n={row['demos']:<3} seed {row['seed']}: seen solved {seen['solved']}/"
+            f"{seen['episodes']}, followed {seen['followed']}/{seen['swaps']}; naming unseen colours solved "
+            f"{unseen['solved']}/{unseen['episodes']}, followed {unseen['followed']}/{unseen['swaps']}"
+        )
+    print(f"one line per cell: {grid_path}")
+
+
+if __name__ == "__main__":
+    run_cli(main)
