@@ -52,7 +52,9 @@ def blind_policy(env: Environment, seed: int) -> Policy:
     At each action it works on the first step of its plan, from where it is, that it has not met yet, with
     the oracle's action for that step (a later step where the oracle finds none); once it has met its whole
     plan it rests (:meth:`Task.rest_action`), so that the goal steps it has met are banked, one per action.
-    Where the task has no blind plan (the instruction does not change what must be done) it is the oracle.
+    Once nothing is left to do and the current goal step is not met, no later action could bank anything, and
+    it ends the episode (returns None). Where the task has no blind plan (the instruction does not change what
+    must be done) it is the oracle.
     """
     task = _task_of(env)
     plan: list[Any] | None = None
@@ -72,7 +74,7 @@ def blind_policy(env: Environment, seed: int) -> Policy:
                 action = task.pursue(step)
                 if action is not None:
                     return action
-        return task.rest_action()
+        return task.rest_action() if task.goals and task.step_met(task.goals[0]) else None
 
     return act
 
@@ -103,6 +105,9 @@ class ExpertTask(Protocol):
     def pursue(self, step: Any) -> dict[str, Any] | None: ...
 
     def rest_action(self) -> dict[str, Any]: ...
+
+    @property
+    def goals(self) -> list[Any]: ...
 
 
 def _task_of(env: Environment) -> ExpertTask:

@@ -110,3 +110,16 @@ def test_blind_policy_banks_met_steps_one_per_action():
     # the second step's block first (nothing banked), then the first's (banked), then a rest banks the second
     assert [round(s["reward"], 3) for s in episode.steps] == [0.0, 0.5, 0.5]
     assert episode.success and episode.n_actions == 3
+
+
+class FirstOutOfReach(TwoBlocks):
+    """The blind expert's plan holds only the second step: once it is met, the first can never be."""
+
+    def blind_plan(self, rng):
+        return [self.goals[1]]
+
+
+def test_blind_policy_stops_when_no_action_could_bank_more():
+    with Environment(EnvConfig.defaults(camera_scale=0.5), task=FirstOutOfReach()) as env:
+        episode = run_episode(env, 0, blind_policy(env, 0), record=True)
+    assert episode.n_actions == 1 and episode.steps[0]["reward"] == 0.0 and not episode.success
