@@ -68,9 +68,12 @@ def test_put_block_in_bowl_rules_out_colours_seen_on_both():
             env.reset(seed)
             blocks = {c for c, _ in task.colors_seen["blocks"]}
             bowls = {c for c, _ in task.colors_seen["bowls"]}
+            counts = []
             for step in task.blind_plan(np.random.default_rng(seed)):
                 pick = {c for c, b in task.colors_seen["blocks"] if b in step.objects}
                 assert len(pick) == 1 and not pick & bowls and pick <= blocks
+                counts.append(len(step.objects) + len(step.targets))
+            assert counts == sorted(counts, reverse=True)  # colours on more objects first
 
 
 def test_rest_action_moves_nothing():
