@@ -24,7 +24,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-import cliport.agents.base as agent_base
+import cliport.agents.loss as agent_loss
 from cliport.agents import load_agent
 from cliport.agents.base import PickPlaceAgent
 from cliport.agents.loss import pick_place_terms
@@ -362,6 +362,6 @@ def test_a_planted_one_percent_loss_scale_fails_parity(transporter_reference, sa
         return total * 1.01, terms
 
     with monkeypatch.context() as patch:
-        patch.setattr(agent_base, "pick_place_terms", scaled)
+        patch.setattr(agent_loss, "pick_place_terms", scaled)
         failures = _check("transporter_only", transporter_reference, samples, patch)
     assert any("first-step gradient" in f for f in failures), failures
