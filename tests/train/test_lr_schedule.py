@@ -68,7 +68,9 @@ def test_a_time_budget_cools_down_by_the_time_spent(tmp_path, make_synthetic_dat
     make_synthetic_dataset(str(tmp_path), n_episodes=2)
     summary = train(_config(tmp_path, tiny_config, n_steps=100_000, time_budget_s=3.0), progress=False)
     assert summary["stopped_by"] == "time_budget"
-    assert 0 <= _last_lr(tmp_path) < 1e-3 * 0.2  # the last step ran in the budget's last 15 %
+    # By its steps the run is at its very start (rate 1e-3); by its time, the last step began in the budget's last
+    # 30 % (a tiny step takes well under 0.9 s even on a loaded CPU), at a rate under 0.4 of the configured one.
+    assert 0 <= _last_lr(tmp_path) < 1e-3 * 0.4
 
 
 def test_a_cooldown_trains_eagerly_where_steps_would_be_captured(
