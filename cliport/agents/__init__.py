@@ -27,38 +27,6 @@ if TYPE_CHECKING:
         resolve_agent,
     )
 
-#: Each re-exported name and the module of this package that holds it.
-_HOMES = {
-    "PickPlaceAgent": "base",
-    "read_checkpoint": "checkpoint",
-    "read_weights": "checkpoint",
-    "AgentConfig": "config",
-    **dict.fromkeys(
-        (
-            "agent_class",
-            "agent_from_payload",
-            "agent_names",
-            "config_classes",
-            "load_agent",
-            "make_agent",
-            "make_config",
-            "register_agent",
-            "resolve_agent",
-        ),
-        "registry",
-    ),
-}
-
-
-def __getattr__(name: str) -> Any:
-    """A re-exported name, imported from its module at first use and kept here (so it can be monkeypatched)."""
-    if name not in _HOMES:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(f"{__name__}.{_HOMES[name]}"), name)
-    globals()[name] = value
-    return value
-
-
 __all__ = [
     "AgentConfig",
     "PickPlaceAgent",
@@ -74,3 +42,21 @@ __all__ = [
     "register_agent",
     "resolve_agent",
 ]
+
+#: The module of this package that holds each re-exported name (the registry, unless named here).
+_HOMES = {
+    **dict.fromkeys(__all__, "registry"),
+    "PickPlaceAgent": "base",
+    "read_checkpoint": "checkpoint",
+    "read_weights": "checkpoint",
+    "AgentConfig": "config",
+}
+
+
+def __getattr__(name: str) -> Any:
+    """A re-exported name, imported from its module at first use and kept here (so it can be monkeypatched)."""
+    if name not in _HOMES:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"{__name__}.{_HOMES[name]}"), name)
+    globals()[name] = value
+    return value
