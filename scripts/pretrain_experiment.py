@@ -5,7 +5,8 @@ Each cell runs ``scripts/quickstart.py --language`` (the lesson's settings: conf
 its time budget included) on put-one-block-in-bowl-seen-colors with ``--demos N``, ``--semantic-encoder NAME`` and
 ``--clip-weights`` random or the pretrained file, and ``--test-task put-one-block-in-bowl-unseen-colors``; then
 writes one JSON line to ``OUT/grid.jsonl``: solved and swapped instructions followed on the seen colours, and on
-the unseen split, all and only those naming an unseen colour. Cells share one demo folder (``OUT/demos``); a
+the unseen split, all and only those naming an unseen colour. At the end ``OUT/grid.md`` tables every cell and
+``OUT/demo_curve.png`` plots following and solving against demos. Cells share one demo folder (``OUT/demos``); a
 re-run skips finished cells and resumes an interrupted one (the quickstart resumes). Arguments this script does
 not know are passed to every quickstart run (``--minutes 5``, ``--episodes 40``, ...).
 
@@ -107,6 +108,67 @@ def write_grid(path: str, lines: dict[str, dict[str, Any]]) -> None:
     write_text(path, "".join(json.dumps(line) + "\n" for line in lines.values()))
 
 
+def rate(part: dict[str, Any], key: str, of: str) -> float | None:
+    """``part[key] / part[of]``, None where nothing was counted."""
+    return part[key] / part[of] if part.get(of) else None
+
+
+def grid_table(rows: list[dict[str, Any]]) -> str:
+    """The cells as a markdown table: seen colours, and the unseen split's instructions naming an unseen colour."""
+    lines = [
+        "| arm | demos | seed | steps | seen: solved | seen: swaps followed | naming an unseen colour: solved | "
+        "naming an unseen colour: swaps followed |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for row in rows:
+        seen, named = row["seen"], row["unseen"]["unseen_named"]
+        lines.append(
+            f"| {row['arm']} | {row['demos']} | {row['seed']} | {row.get('steps', '-')} | "
+            f"{seen['solved']}/{seen['episodes']} | {seen['followed']}/{seen['swaps']} | "
+            f"{named['solved']}/{named['episodes']} | {named['followed']}/{named['swaps']} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def plot_curve(rows: list[dict[str, Any]], path: str) -> None:
+    """Instructions followed and episodes solved against demos, one line per arm and colour split (the mean over
+    seeds)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    arms = sorted({row["arm"] for row in rows}, key=ARMS.index)
+    demos = sorted({row["demos"] for row in rows})
+    panels = (("followed", "swaps", "swapped instructions followed"), ("solved", "episodes", "episodes solved"))
+    for ax, (key, of, title) in zip(axes, panels, strict=True):
+        for k, arm in enumerate(arms):
+            for split, style, label in (("seen", "o-", "seen colours"), ("unseen", "s--", "naming an unseen colour")):
+                points: dict[int, list[float]] = {}
+                for row in rows:
+                    part = row["seen"] if split == "seen" else row["unseen"]["unseen_named"]
+                    value = rate(part, key, of)
+                    if row["arm"] == arm and value is not None:
+                        points.setdefault(row["demos"], []).append(100 * value)
+                xs = sorted(points)
+                means = [sum(points[x]) / len(points[x]) for x in xs]
+                ax.plot(xs, means, style, color=f"C{k}", label=f"{arm}: {label}")
+        ax.set_xscale("log")
+        ax.set_xticks(demos, [str(n) for n in demos])
+        ax.set_xlabel("demonstrations (seen colours)")
+        ax.set_ylabel("%")
+        ax.set_ylim(-3, 103)
+        ax.set_title(title)
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8)
+    fig.tight_layout()
+    tmp = path + ".tmp.png"
+    fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    os.replace(tmp, path)
+
+
 def main() -> None:
     args, passthrough = parse_args()
     demos = os.path.abspath(os.path.join(args.out, "demos"))
@@ -144,7 +206,13 @@ def main() -> None:
             f"{seen['episodes']}, followed {seen['followed']}/{seen['swaps']}; naming unseen colours solved "
             f"{unseen['solved']}/{unseen['episodes']}, followed {unseen['followed']}/{unseen['swaps']}"
         )
-    print(f"one line per cell: {grid_path}")
+    rows = sorted(lines.values(), key=lambda row: (row["demos"], ARMS.index(row["arm"]), row["seed"]))
+    write_text(os.path.join(args.out, "grid.md"), grid_table(rows))
+    plot_curve(rows, os.path.join(args.out, "demo_curve.png"))
+    print(
+        f"one line per cell: {grid_path}; the table: {os.path.join(args.out, 'grid.md')}; the curve: "
+        f"{os.path.join(args.out, 'demo_curve.png')}"
+    )
 
 
 if __name__ == "__main__":

@@ -35,3 +35,6 @@ def test_finished_cells_are_not_run_again_and_are_summarised(tmp_path):
     assert done.returncode == 0, done.stderr
     assert done.stdout.count("done before") == 2 and not (out / "cells").exists()
     assert "random n=30  seed 0: seen solved 9/10, followed 8/10; naming unseen colours solved 2/10" in done.stdout
+    table = (out / "grid.md").read_text().splitlines()
+    assert len(table) == 4 and table[3] == "| random | 30 | 0 | - | 9/10 | 8/10 | 2/10 | 2/10 |"
+    assert (out / "demo_curve.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
