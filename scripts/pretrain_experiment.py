@@ -161,6 +161,7 @@ def plot_curve(rows: list[dict[str, Any]], path: str) -> None:
         ax.set_ylim(-3, 103)
         ax.set_title(title)
         ax.grid(alpha=0.3)
+    axes[0].axhline(100 / 3, color="0.4", linestyle=":", label="chance: one of three blocks")
     axes[0].legend(fontsize=8)
     fig.tight_layout()
     tmp = path + ".tmp.png"
