@@ -18,6 +18,7 @@ The arm ``published`` (``--arms random pretrained published``) runs CLIPort's RN
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import subprocess
@@ -27,7 +28,7 @@ from typing import Any
 
 from cliport.cli.common import OneLineParser, run_cli
 from cliport.errors import ConfigError
-from cliport.utils.files import read_json, write_text
+from cliport.utils.files import read_json, write_bytes, write_text
 
 TRAIN_TASK = "put-one-block-in-bowl-seen-colors"
 TEST_TASK = "put-one-block-in-bowl-unseen-colors"
@@ -164,10 +165,10 @@ def plot_curve(rows: list[dict[str, Any]], path: str) -> None:
     axes[0].axhline(100 / 3, color="0.4", linestyle=":", label="chance: one of three blocks")
     axes[0].legend(fontsize=8)
     fig.tight_layout()
-    tmp = path + ".tmp.png"
-    fig.savefig(tmp, dpi=110)
+    image = io.BytesIO()
+    fig.savefig(image, format="png", dpi=110)
+    write_bytes(path, image.getvalue())
     plt.close(fig)
-    os.replace(tmp, path)
 
 
 def main() -> None:
