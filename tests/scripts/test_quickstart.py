@@ -84,7 +84,7 @@ def test_the_language_lesson_measures_instruction_following_and_draws_two_instru
     assert training["steps"] == 2 and training["tested_step"] == 2 and training["trained_s"] > 0
     assert [row["step"] for row in training["held_out"]["curve"]] == [2]
     assert training["held_out"]["check"]["samples"] == 12  # 2 validation scenes x 6 instructions
-    assert training["held_out"]["check"]["start"] == 450 and training["lr_cooldown"] == 0.25
+    assert training["held_out"]["check"]["start"] == 450 and training["lr_cooldown"] == 0.5
     assert training["batch_size"] == 2  # the CPU lesson's: each batch a contrasting pair
     assert not summary["aims"]["met"] and "The lesson's aims" in out.stdout and "not met: solved" in out.stdout
 
@@ -137,15 +137,16 @@ def test_the_cpu_lesson_trains_pairs_in_one_batch_cools_its_rate_down_and_checks
     monkeypatch.setattr(sys, "argv", ["quickstart.py", "--language"])
     quickstart = _quickstart_module()
     cpu = quickstart.parse_args("cpu")
-    assert (cpu.batch_size, cpu.lr_cooldown, cpu.check_scenes, cpu.check_every, cpu.check_start) == (
+    assert (cpu.batch_size, cpu.lr, cpu.lr_cooldown, cpu.check_scenes, cpu.check_every, cpu.check_start) == (
         2,
-        0.25,
+        6e-4,
+        0.5,
         10,
         150,
         450,
     )
     cuda = quickstart.parse_args("cuda")  # the GPU lesson's measured settings: batch 1, a constant rate
-    assert (cuda.batch_size, cuda.lr_cooldown, cuda.check_every, cuda.check_start) == (1, 0.0, 300, 900)
+    assert (cuda.batch_size, cuda.lr, cuda.lr_cooldown, cuda.check_every, cuda.check_start) == (1, 2e-4, 0.0, 300, 900)
     monkeypatch.setattr(sys, "argv", ["quickstart.py", "--language", "--batch-size", "1", "--check-start", "900"])
     assert (quickstart.parse_args("cpu").batch_size, quickstart.parse_args("cpu").check_start) == (1, 900)
     monkeypatch.setattr(sys, "argv", ["quickstart.py"])
