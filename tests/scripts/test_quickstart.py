@@ -139,7 +139,7 @@ def test_the_cpu_lesson_trains_pairs_in_one_batch_cools_its_rate_down_and_checks
     cpu = quickstart.parse_args("cpu")
     assert (cpu.batch_size, cpu.lr, cpu.lr_cooldown, cpu.check_scenes, cpu.check_every, cpu.check_start) == (
         2,
-        6e-4,
+        8e-4,
         0.5,
         10,
         150,
