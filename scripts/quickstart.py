@@ -25,6 +25,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import math
 import os
 import sys
 import time
@@ -178,6 +179,7 @@ def parse_args(device: str) -> Any:
     if not 0 <= args.lr_cooldown <= 1:
         raise ConfigError(f"--lr-cooldown is a fraction of the training, from 0 to 1, got {args.lr_cooldown}")
     args.aims = setting.get("aims")
+    args.measured_steps = setting.get("measured_steps", 0)
     if args.pair_contrasts is None:  # on by default where there are a scene's instructions to pair
         args.pair_contrasts = bool(setting.get("pair_contrasts", False)) and args.every_instruction
     tasks.resolve(args.task)
@@ -260,16 +262,27 @@ def machine_speed(config: TrainConfig, args: Any, device: str) -> dict[str, Any]
     kernels = torch.backends.cpu.get_cpu_capability() if device == "cpu" else torch.cuda.get_device_name()
     where = f"{torch.get_num_threads()} CPU threads, {kernels} kernels" if device == "cpu" else kernels
     if args.minutes > 0:
-        steps = min(args.steps, int(args.minutes * 60 / seconds))
-        means = (
-            f"so the {args.minutes:g}-minute training budget fits about {steps} steps (at most {args.steps}); a "
-            "slower machine trains fewer steps in the same time (docs/language-lesson.md has the measured runs)"
-        )
+        steps, means = budget_means(seconds, args.minutes, args.steps, args.measured_steps)
     else:
         steps = args.steps
         means = f"so {args.steps} steps take about {args.steps * seconds / 60:.1f} minutes"
     print(f"machine: {where}; a training step takes {seconds:.2f} s, {means}")
     return {"device": where, "probe_step_s": round(seconds, 3), "expected_steps": steps}
+
+
+def budget_means(seconds: float, minutes: float, max_steps: int, measured_steps: int = 0) -> tuple[int, str]:
+    """The steps a ``minutes`` training budget fits at ``seconds`` a step, and what to say of it; where that is under
+    ``measured_steps`` (the fewest the lesson's aims were measured to hold at), the ``--minutes`` that trains them
+    (the checks and saves take about 5 % besides the steps)."""
+    steps = min(max_steps, int(minutes * 60 / seconds))
+    means = f"so the {minutes:g}-minute training budget fits about {steps} steps (at most {max_steps})"
+    if steps < min(measured_steps, max_steps):
+        enough = math.ceil(measured_steps * seconds * 1.05 / 30) / 2
+        return steps, (
+            f"{means}: fewer than the {measured_steps} the lesson's aims were measured at; --minutes {enough:g} "
+            "trains about that many here (docs/language-lesson.md#when-a-run-misses-the-aims)"
+        )
+    return steps, f"{means}; a slower machine trains fewer steps in the same time (docs/language-lesson.md)"
 
 
 def held_out_check(args: Any) -> HeldOutCheck:

@@ -152,3 +152,16 @@ def test_the_cpu_lesson_trains_pairs_in_one_batch_cools_its_rate_down_and_checks
     monkeypatch.setattr(sys, "argv", ["quickstart.py"])
     plain = quickstart.parse_args("cpu")  # the transporter_only quickstart: unchanged
     assert (plain.batch_size, plain.lr_cooldown) == (1, 0.0)
+
+
+def test_a_budget_under_the_measured_steps_says_which_minutes_train_them(monkeypatch):
+    monkeypatch.setattr(sys, "argv", ["quickstart.py", "--language"])
+    quickstart = _quickstart_module()
+    assert quickstart.parse_args("cpu").measured_steps == 700 and quickstart.parse_args("cuda").measured_steps == 0
+    # 1.07 s a step (a 2-core EPYC of family 25): 588 steps in 10.5 minutes; 700 at 1.07 s plus 5 % is 13.1 minutes.
+    steps, means = quickstart.budget_means(1.07, 10.5, 4000, 700)
+    assert steps == 588 and "fewer than the 700" in means and "--minutes 13.5 " in means
+    steps, means = quickstart.budget_means(0.45, 10.5, 4000, 700)  # a faster CPU: 1400 steps, no advice
+    assert steps == 1400 and "--minutes" not in means and "slower machine" in means
+    assert quickstart.budget_means(0.01, 10.5, 4000, 700)[0] == 4000  # capped at --steps
+    assert "--minutes" not in quickstart.budget_means(1.07, 10.5, 2, 700)[1]  # --steps, not the budget, holds it
