@@ -276,7 +276,7 @@ def budget_means(seconds: float, minutes: float, max_steps: int, measured_steps:
     (the checks and saves take about 5 % besides the steps)."""
     steps = min(max_steps, int(minutes * 60 / seconds))
     means = f"so the {minutes:g}-minute training budget fits about {steps} steps (at most {max_steps})"
-    if steps < min(measured_steps, max_steps):
+    if steps < measured_steps <= max_steps:  # a --steps under measured_steps is the user's choice
         enough = math.ceil(measured_steps * seconds * 1.05 / 30) / 2
         return steps, (
             f"{means}: fewer than the {measured_steps} the lesson's aims were measured at; --minutes {enough:g} "

@@ -165,3 +165,4 @@ def test_a_budget_under_the_measured_steps_says_which_minutes_train_them(monkeyp
     assert steps == 1400 and "--minutes" not in means and "slower machine" in means
     assert quickstart.budget_means(0.01, 10.5, 4000, 700)[0] == 4000  # capped at --steps
     assert "--minutes" not in quickstart.budget_means(1.07, 10.5, 2, 700)[1]  # --steps, not the budget, holds it
+    assert "--minutes" not in quickstart.budget_means(1.07, 10.5, 600, 700)[1]  # --steps under 700: asked for
