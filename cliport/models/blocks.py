@@ -190,6 +190,11 @@ class _ConvOverFrozenSkip(torch.autograd.Function):
     gradient nobody reads. The forward and the weight and bias gradients are the same calls as plain autograd's
     (bitwise the same values); the input gradient of ``x`` comes from a conv backward over ``x`` and its
     slice of the weight, which sums the same products and may round differently (~3e-7 relative, measured).
+
+    With ``index`` (N,), the skip holds D distinct images and sample n reads ``skip[index[n]]``
+    (:mod:`~cliport.models.distinct_images`): the skip's share of the conv runs once per distinct image,
+    ``conv(skip, W_skip)[index] + conv(x, W_x)``, and its weight gradient once over the repeats' summed
+    gradients. The same sums of products in another order (float rounding apart).
     """
 
     @staticmethod
@@ -200,29 +205,44 @@ class _ConvOverFrozenSkip(torch.autograd.Function):
         weight: torch.Tensor,
         bias: torch.Tensor | None,
         settings: tuple[tuple[int, int], tuple[int, int], tuple[int, int], int],
+        index: torch.Tensor | None = None,
     ) -> torch.Tensor:
-        joined = torch.cat([skip, x], dim=1)
-        ctx.save_for_backward(joined, weight)
-        ctx.skip_channels = skip.shape[1]
+        c = skip.shape[1]
+        ctx.skip_channels = c
         ctx.settings = settings
         ctx.has_bias = bias is not None
-        return F.conv2d(joined, weight, bias, *settings)
+        if index is None:
+            joined = torch.cat([skip, x], dim=1)
+            ctx.save_for_backward(joined, weight)
+            return F.conv2d(joined, weight, bias, *settings)
+        skip_weight, x_weight = weight[:, :c].contiguous(), weight[:, c:].contiguous()
+        ctx.save_for_backward(skip, x, skip_weight, x_weight, index)
+        shared = F.conv2d(skip, skip_weight, None, *settings)
+        return F.conv2d(x, x_weight, bias, *settings) + shared.index_select(0, index)
 
     @staticmethod
-    def backward(ctx: Any, grad: torch.Tensor) -> tuple[None, torch.Tensor, torch.Tensor, torch.Tensor | None, None]:
-        joined, weight = ctx.saved_tensors
+    def backward(
+        ctx: Any, grad: torch.Tensor
+    ) -> tuple[None, torch.Tensor, torch.Tensor, torch.Tensor | None, None, None]:
+        c = ctx.skip_channels
         stride, padding, dilation, groups = ctx.settings
-        bias_sizes = [weight.shape[0]] if ctx.has_bias else None
         conv_backward = torch.ops.aten.convolution_backward
-        _, grad_weight, grad_bias = conv_backward(
-            grad, joined, weight, bias_sizes, stride, padding, dilation, False, [0, 0], groups,
-            [False, True, ctx.has_bias],
-        )  # fmt: skip
-        x, x_weight = joined[:, ctx.skip_channels :], weight[:, ctx.skip_channels :].contiguous()
-        grad_x, _, _ = conv_backward(
-            grad, x, x_weight, None, stride, padding, dilation, False, [0, 0], groups, [True, False, False]
-        )
-        return None, grad_x, grad_weight, grad_bias if ctx.has_bias else None, None
+
+        def backward_of(g, inp, w, wanted):  # type: ignore[no-untyped-def]  # aten's untyped op
+            bias_sizes = [w.shape[0]] if wanted[2] else None
+            return conv_backward(g, inp, w, bias_sizes, stride, padding, dilation, False, [0, 0], groups, wanted)
+
+        if len(ctx.saved_tensors) == 2:
+            joined, weight = ctx.saved_tensors
+            _, grad_weight, grad_bias = backward_of(grad, joined, weight, [False, True, ctx.has_bias])
+            grad_x, _, _ = backward_of(grad, joined[:, c:], weight[:, c:].contiguous(), [True, False, False])
+        else:
+            skip, x, skip_weight, x_weight, index = ctx.saved_tensors
+            summed = grad.new_zeros((skip.shape[0], *grad.shape[1:])).index_add_(0, index, grad)
+            _, skip_grad, _ = backward_of(summed, skip, skip_weight, [False, True, False])
+            grad_x, x_grad, grad_bias = backward_of(grad, x, x_weight, [True, True, ctx.has_bias])
+            grad_weight = torch.cat([skip_grad, x_grad], dim=1)
+        return None, grad_x, grad_weight, grad_bias if ctx.has_bias else None, None, None
 
 
 class UpBlock(nn.Module):
@@ -230,24 +250,27 @@ class UpBlock(nn.Module):
     [skip, up] and a :class:`DoubleConv` from ``in_ch`` (= both widths) through ``in_ch // 2`` to ``out_ch``.
 
     When the skip needs no gradient (a frozen encoder's features) and autocast is off, training's backward
-    skips the skip's input gradient (:class:`_ConvOverFrozenSkip`)."""
+    skips the skip's input gradient, and a skip of distinct images (``index``) is convolved once per image
+    (:class:`_ConvOverFrozenSkip`)."""
 
-    def __init__(self, in_ch: int, out_ch: int) -> None:
+    def __init__(self, in_ch: int, out_ch: int, mid_ch: int | None = None) -> None:
         super().__init__()
-        self.conv = DoubleConv(in_ch, out_ch, in_ch // 2)
+        self.conv = DoubleConv(in_ch, out_ch, in_ch // 2 if mid_ch is None else mid_ch)
 
-    def forward(self, x: torch.Tensor, skip: torch.Tensor) -> torch.Tensor:
-        """(N, c, h, w), skip (N, in_ch - c, H, W) with H, W >= 2h, 2w -> (N, out_ch, H, W)."""
+    def forward(self, x: torch.Tensor, skip: torch.Tensor, index: torch.Tensor | None = None) -> torch.Tensor:
+        """(N, c, h, w), skip (N, in_ch - c, H, W) with H, W >= 2h, 2w -> (N, out_ch, H, W). ``index`` (N,): the
+        skip holds D distinct images instead, (D, in_ch - c, H, W), and sample n reads ``skip[index[n]]``."""
         x = upsample2x(x)
         dh, dw = skip.shape[-2] - x.shape[-2], skip.shape[-1] - x.shape[-1]
         if dh or dw:
             x = F.pad(x, [dw // 2, dw - dw // 2, dh // 2, dh - dh // 2])
         first = self.conv[0]
-        frozen_skip = x.requires_grad and not skip.requires_grad and torch.is_grad_enabled()
+        frozen_skip = not skip.requires_grad and (index is not None or (x.requires_grad and torch.is_grad_enabled()))
         if not frozen_skip or torch.is_autocast_enabled(x.device.type) or first.padding_mode != "zeros":
+            skip = skip if index is None else skip.index_select(0, index)
             return self.conv(torch.cat([skip, x], dim=1))
         settings = (first.stride, first.padding, first.dilation, first.groups)
-        y = _ConvOverFrozenSkip.apply(skip, x, first.weight, first.bias, settings)
+        y = _ConvOverFrozenSkip.apply(skip, x, first.weight, first.bias, settings, index)
         for layer in list(self.conv)[1:]:
             y = layer(y)
         return y

@@ -10,6 +10,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from cliport.models.distinct_images import DistinctImages, distinct_images
 from cliport.models.encoders.base import FrozenEncoder
 
 
@@ -62,3 +63,11 @@ class EncoderNet(nn.Module):
         stats = self.encoder_stats.as_dict() if self.encoder_stats is not None else None
         group = self.samples_per_group if self.training and self.train_encoder_norms else None
         return self.encoder.image_features(x[:, :3], stats, batch_stats_group=group)
+
+    def distinct_inputs(self, x: torch.Tensor) -> DistinctImages | None:
+        """The distinct images of a raw batch (N, 6, H, W) and each sample's among them
+        (:func:`~cliport.models.distinct_images.distinct_images`), or None: every image differs, or the trunk's
+        batch norms train on this call (each sample's pass updates the statistics, as a reference step would)."""
+        if self.training and self.train_encoder_norms:
+            return None
+        return distinct_images(x)

@@ -17,6 +17,7 @@ import torch
 from torch import nn
 
 from cliport.models.blocks import UpBlock, UpStage, resize, scaled
+from cliport.models.distinct_images import per_sample
 from cliport.models.encoders.base import FrozenEncoder
 from cliport.models.fusion import LateralFusion, language_gate
 
@@ -35,17 +36,23 @@ def _sentence_fc(encoder: FrozenEncoder) -> nn.Linear | None:
 
 
 def _unet(
-    encoder: FrozenEncoder, width: float
+    encoder: FrozenEncoder, width: float, scale_up_mid: bool = False
 ) -> tuple[nn.Linear | None, nn.ModuleList, nn.Sequential, nn.ModuleList, nn.ModuleList]:
     """The parts both decoders share, built in this order (that of their random initialisation): the
-    reference's text_fc (None over CLIP), lang_proj1..3, conv1, up1..3 and layer1..3."""
+    reference's text_fc (None over CLIP), lang_proj1..3, conv1, up1..3 and layer1..3. ``scale_up_mid``: the
+    up-blocks' middle widths scale with ``width`` (see :class:`~cliport.agents.config.LanguageConfig`)."""
     _, c1, c2, c3, c4 = encoder.trunk_channels
     w1024, w512, w256, w128, w64, w32, w16 = _widths(width)
     sentence_fc = _sentence_fc(encoder)
     s = encoder.sentence_projection or encoder.sentence_dim
     lang_projs = nn.ModuleList([nn.Linear(s, w1024), nn.Linear(s, w512), nn.Linear(s, w256)])
     conv1 = nn.Sequential(nn.Conv2d(c4, w1024, 3, padding=1, bias=False), nn.ReLU(inplace=True))
-    ups = nn.ModuleList([UpBlock(w1024 + c3, w512), UpBlock(w512 + c2, w256), UpBlock(w256 + c1, w128)])
+    mids: list[int | None] = [None, None, None]  # in_ch // 2, the reference's
+    if scale_up_mid:
+        mids = [scaled((decoder + skip) // 2, width) for decoder, skip in ((1024, c3), (512, c2), (256, c1))]
+    ups = nn.ModuleList([
+        UpBlock(w1024 + c3, w512, mids[0]), UpBlock(w512 + c2, w256, mids[1]), UpBlock(w256 + c1, w128, mids[2])
+    ])  # fmt: skip
     layers = nn.ModuleList([UpStage(w128, w64), UpStage(w64, w32), UpStage(w32, w16)])
     return sentence_fc, lang_projs, conv1, ups, layers
 
@@ -59,18 +66,25 @@ class LingUNetDecoder(nn.Module):
     the map by a Linear projection of the sentence feature. The up-blocks' batch norms normalise per sample
     (:class:`~cliport.models.blocks.PerSampleBatchNorm2d`). The trunk's channels and the sentence width come
     from the encoder, whose sentence feature first goes through ``sentence_fc`` when it asks for a
-    projection; ``width`` scales the decoder's own widths.
+    projection; ``width`` scales the decoder's own widths (``scale_up_mid``: the up-blocks' middle ones too).
     """
 
-    def __init__(self, encoder: FrozenEncoder, out_ch: int, width: float = 1.0) -> None:
+    def __init__(self, encoder: FrozenEncoder, out_ch: int, width: float = 1.0, scale_up_mid: bool = False) -> None:
         super().__init__()
         # text_fc, lang_proj1..3, conv1, up1..3, layer1..3
-        self.sentence_fc, self.gates, self.bottleneck, self.ups, self.stages = _unet(encoder, width)
+        self.sentence_fc, self.gates, self.bottleneck, self.ups, self.stages = _unet(encoder, width, scale_up_mid)
         self.out = nn.Conv2d(_widths(width)[-1], out_ch, 1)  # conv2
 
-    def forward(self, trunk: list[torch.Tensor], sentence: torch.Tensor, out_size: tuple[int, int]) -> torch.Tensor:
+    def forward(
+        self,
+        trunk: list[torch.Tensor],
+        sentence: torch.Tensor,
+        out_size: tuple[int, int],
+        index: torch.Tensor | None = None,
+    ) -> torch.Tensor:
         """Trunk features [stem, layer1..4] of an (N, 3, H, W) image, sentence (N, sentence_dim), out_size (H, W)
-        -> (N, out_ch, H, W)."""
+        -> (N, out_ch, H, W). ``index`` (N,): the trunk features are of D distinct images, sample n's being
+        ``index[n]`` (:mod:`~cliport.models.distinct_images`); the image-only layers run once per image."""
         _, l1, l2, l3, l4 = trunk
         lang_proj1, lang_proj2, lang_proj3 = self.gates
         up1, up2, up3 = self.ups
@@ -78,10 +92,10 @@ class LingUNetDecoder(nn.Module):
         if self.sentence_fc is not None:
             sentence = self.sentence_fc(sentence)
 
-        x = self.bottleneck(l4)
-        x = up1(language_gate(x, lang_proj1(sentence)), l3)
-        x = up2(language_gate(x, lang_proj2(sentence)), l2)
-        x = up3(language_gate(x, lang_proj3(sentence)), l1)
+        x = per_sample(self.bottleneck(l4), index)
+        x = up1(language_gate(x, lang_proj1(sentence)), l3, index)
+        x = up2(language_gate(x, lang_proj2(sentence)), l2, index)
+        x = up3(language_gate(x, lang_proj3(sentence)), l1, index)
         x = layer1(x)
         x = layer2(x)
         x = layer3(x)
@@ -100,13 +114,18 @@ class LingUNetLatDecoder(nn.Module):
     """
 
     def __init__(
-        self, encoder: FrozenEncoder, out_ch: int, lateral_widths: tuple[int, ...], width: float = 1.0
+        self,
+        encoder: FrozenEncoder,
+        out_ch: int,
+        lateral_widths: tuple[int, ...],
+        width: float = 1.0,
+        scale_up_mid: bool = False,
     ) -> None:
         super().__init__()
         _, w512, w256, w128, w64, w32, w16 = _widths(width)
         lat16, lat8, lat4, lat2, lat1, lat_half = lateral_widths
         # text_fc, lang_proj1..3, conv1, up1..3, layer1..3
-        self.sentence_fc, self.gates, self.bottleneck, self.ups, self.stages = _unet(encoder, width)
+        self.sentence_fc, self.gates, self.bottleneck, self.ups, self.stages = _unet(encoder, width, scale_up_mid)
         self.fusions = nn.ModuleList(  # lat_fusion1..6
             [
                 LateralFusion(w512 + lat16, w512),
@@ -125,24 +144,27 @@ class LingUNetLatDecoder(nn.Module):
         sentence: torch.Tensor,
         laterals: list[torch.Tensor],
         out_size: tuple[int, int],
+        index: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """Trunk features [stem, layer1..4] of an (N, 3, H, W) image, sentence (N, sentence_dim), the six
-        spatial laterals (strides 16, 8, 4, 2, 1, 1/2), out_size (H, W) -> (N, out_ch, H, W)."""
+        spatial laterals (strides 16, 8, 4, 2, 1, 1/2), out_size (H, W) -> (N, out_ch, H, W). ``index`` (N,):
+        the trunk features and laterals are of D distinct images, sample n's being ``index[n]``
+        (:mod:`~cliport.models.distinct_images`); the image-only layers run once per image."""
         _, l1, l2, l3, l4 = trunk
         lang_proj1, lang_proj2, lang_proj3 = self.gates
         up1, up2, up3 = self.ups
         layer1, layer2, layer3 = self.stages
         lat_fusion1, lat_fusion2, lat_fusion3, lat_fusion4, lat_fusion5, lat_fusion6 = self.fusions
-        lat16, lat8, lat4, lat2, lat1, lat_half = laterals
+        lat16, lat8, lat4, lat2, lat1, lat_half = (per_sample(lateral, index) for lateral in laterals)
         if self.sentence_fc is not None:
             sentence = self.sentence_fc(sentence)
 
-        x = self.bottleneck(l4)
-        x = up1(language_gate(x, lang_proj1(sentence)), l3)
+        x = per_sample(self.bottleneck(l4), index)
+        x = up1(language_gate(x, lang_proj1(sentence)), l3, index)
         x = lat_fusion1(x, lat16)
-        x = up2(language_gate(x, lang_proj2(sentence)), l2)
+        x = up2(language_gate(x, lang_proj2(sentence)), l2, index)
         x = lat_fusion2(x, lat8)
-        x = up3(language_gate(x, lang_proj3(sentence)), l1)
+        x = up3(language_gate(x, lang_proj3(sentence)), l1, index)
         x = lat_fusion3(x, lat4)
         x = layer1(x)
         x = lat_fusion4(x, lat2)

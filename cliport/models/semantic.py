@@ -20,13 +20,20 @@ class SemanticNet(EncoderNet):
     input; the height channels are not seen. ``per_net_clip_stats``: see :class:`EncoderNet`."""
 
     def __init__(
-        self, encoder: FrozenEncoder, out_ch: int, width: float = 1.0, per_net_clip_stats: bool = False
+        self,
+        encoder: FrozenEncoder,
+        out_ch: int,
+        width: float = 1.0,
+        per_net_clip_stats: bool = False,
+        scale_up_mid: bool = False,
     ) -> None:
         super().__init__(encoder, per_net_clip_stats)
-        self.semantic = LingUNetDecoder(encoder, out_ch, width)
+        self.semantic = LingUNetDecoder(encoder, out_ch, width, scale_up_mid)
 
     def forward(self, x: torch.Tensor, sentence: torch.Tensor | None = None) -> torch.Tensor:
         """Raw (N, 6, H, W) (H, W multiples of 32), sentence (N, sentence_dim) -> (N, out_ch, H, W)."""
         if sentence is None:
             raise ValueError("the semantic net needs a sentence feature")
-        return self.semantic(self.encoder_features(x), sentence, x.shape[-2:])
+        distinct = self.distinct_inputs(x)
+        images, index = (x, None) if distinct is None else distinct
+        return self.semantic(self.encoder_features(images), sentence, x.shape[-2:], index)

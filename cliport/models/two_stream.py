@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import torch
 
+from cliport.models.distinct_images import per_sample
 from cliport.models.encoder_net import EncoderNet
 from cliport.models.encoders.base import FrozenEncoder
 from cliport.models.fusion import AddFusion, ConvFusion
@@ -25,7 +26,10 @@ class TwoStreamNet(EncoderNet):
 
     The spatial stream's six laterals feed the semantic decoder. ``conv_fusion``: False sums the two streams'
     outputs (the reference's pick nets); True applies ReLU + 1x1 conv (2 * out_ch -> out_ch, no bias) to
-    [spatial, semantic] (its key and query nets). ``per_net_clip_stats``: see :class:`EncoderNet`.
+    [spatial, semantic] (its key and query nets). ``per_net_clip_stats``: see :class:`EncoderNet`;
+    ``scale_up_mid``: see :class:`~cliport.models.lingunet.LingUNetLatDecoder`.
+    A batch that repeats an image (a contrasting pair, a scene under several instructions) runs the spatial stream,
+    the trunk and the decoder's image-only layers once per distinct image (:mod:`~cliport.models.distinct_images`).
     """
 
     def __init__(
@@ -35,16 +39,19 @@ class TwoStreamNet(EncoderNet):
         width: float = 1.0,
         conv_fusion: bool = False,
         per_net_clip_stats: bool = False,
+        scale_up_mid: bool = False,
     ) -> None:
         super().__init__(encoder, per_net_clip_stats)
         self.spatial = ResNet45_10s(IN_CHANNELS, out_ch, width)
-        self.semantic = LingUNetLatDecoder(encoder, out_ch, self.spatial.lateral_widths, width)
+        self.semantic = LingUNetLatDecoder(encoder, out_ch, self.spatial.lateral_widths, width, scale_up_mid)
         self.fuse = ConvFusion(out_ch) if conv_fusion else AddFusion()
 
     def forward(self, x: torch.Tensor, sentence: torch.Tensor | None = None) -> torch.Tensor:
         """Raw (N, 6, H, W) (H, W multiples of 32), sentence (N, sentence_dim) -> (N, out_ch, H, W)."""
         if sentence is None:
             raise ValueError("the two-stream net needs a sentence feature")
-        spatial, laterals = self.spatial(transporter_normalize(x))
-        semantic = self.semantic(self.encoder_features(x), sentence, laterals, x.shape[-2:])
-        return self.fuse(spatial, semantic)
+        distinct = self.distinct_inputs(x)
+        images, index = (x, None) if distinct is None else distinct
+        spatial, laterals = self.spatial(transporter_normalize(images))
+        semantic = self.semantic(self.encoder_features(images), sentence, laterals, x.shape[-2:], index)
+        return self.fuse(per_sample(spatial, index), semantic)
