@@ -20,11 +20,11 @@ class CLIPOnlyAgent(PickPlaceAgent):
 
     def __init__(self, config: CLIPConfig, encoder: FrozenEncoder | None = None) -> None:
         encoder = encoder if encoder is not None else load_clip(config.clip_weights, config.semantic_encoder)
-        stats = config.per_net_clip_stats
-        pick = PickHead(SemanticNet(encoder, 1, config.width, per_net_clip_stats=stats), config.map_scale)
+        net = {"per_net_clip_stats": config.per_net_clip_stats, "scale_up_mid": config.scale_up_mid}
+        pick = PickHead(SemanticNet(encoder, 1, config.width, **net), config.map_scale)
         place = PlaceHead(
-            SemanticNet(encoder, PLACE_FEATURES, config.width, per_net_clip_stats=stats),
-            SemanticNet(encoder, PLACE_FEATURES, config.width, per_net_clip_stats=stats),
+            SemanticNet(encoder, PLACE_FEATURES, config.width, **net),
+            SemanticNet(encoder, PLACE_FEATURES, config.width, **net),
             config.crop_size,
             config.n_rotations,
             config.map_scale,

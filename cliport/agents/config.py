@@ -67,9 +67,16 @@ class LanguageConfig(AgentConfig):
             training set's distinct instructions and rescaled by their RMS norm over their centred RMS norm
             (fitted once when training starts, saved with the weights), so that what the instructions share
             does not drown what tells them apart. Not the reference's: it reads the raw features.
+        scale_up_mid: below width 1, the middle width of the decoder's three up-blocks (the reference's in_ch // 2)
+            shrinks with ``width`` too, as every other width the decoder owns does: ``width`` x (the reference's
+            middle width at width 1), e.g. 128, 64 and 32 at width 0.125 over a ResNet-50 trunk. False: half the
+            narrowed input, whose skip from the frozen trunk does not narrow (576, 288 and 144 there), so the
+            first convolutions over the skips take about half a width-0.125 step's arithmetic. The same net at
+            width 1 either way (the reference's).
     """
 
     center_sentences: bool
+    scale_up_mid: bool
 
 
 @dataclass

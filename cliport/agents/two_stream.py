@@ -24,10 +24,11 @@ class TwoStreamAgent(PickPlaceAgent):
                 raise TypeError(f"{type(config).__name__} names no CLIP: pass the encoder")
             encoder = load_clip(config.clip_weights, config.semantic_encoder)
         stats = isinstance(config, CLIPConfig) and config.per_net_clip_stats  # RN50-BERT has no CLIP
-        pick = PickHead(TwoStreamNet(encoder, 1, config.width, per_net_clip_stats=stats), config.map_scale)
+        net = {"per_net_clip_stats": stats, "scale_up_mid": config.scale_up_mid}
+        pick = PickHead(TwoStreamNet(encoder, 1, config.width, **net), config.map_scale)
         place = PlaceHead(
-            TwoStreamNet(encoder, PLACE_FEATURES, config.width, conv_fusion=True, per_net_clip_stats=stats),
-            TwoStreamNet(encoder, PLACE_FEATURES, config.width, conv_fusion=True, per_net_clip_stats=stats),
+            TwoStreamNet(encoder, PLACE_FEATURES, config.width, conv_fusion=True, **net),
+            TwoStreamNet(encoder, PLACE_FEATURES, config.width, conv_fusion=True, **net),
             config.crop_size,
             config.n_rotations,
             config.map_scale,

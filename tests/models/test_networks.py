@@ -126,3 +126,31 @@ def test_place_head_shapes_and_unrotated_crop() -> None:
     # Bin 0 is the plain crop centred on the pick pixel: padded rows u .. u + crop - 1.
     assert torch.allclose(crops[0, 0], padded[0, :, 10:26, 5:21], atol=1e-5)
     assert torch.allclose(crops[1, 0], padded[1, :, 40:56, 30:46], atol=1e-5)
+
+
+def test_scale_up_mid_narrows_the_up_blocks_below_width_1_only(clip: FrozenCLIP) -> None:
+    """scale_up_mid: the up-blocks' middle widths follow the width (128, 64, 32 at 0.125 over CLIP RN50) where the
+    reference's rule keeps half the input (576, 288, 144); at width 1 both are the reference's net."""
+    from cliport.models.lingunet import LingUNetLatDecoder
+
+    def mids(net: torch.nn.Module) -> list[int]:
+        return [up.conv[0].out_channels for up in net.semantic.ups]
+
+    assert mids(TwoStreamNet(clip, 1, 0.125)) == [576, 288, 144]
+    assert mids(TwoStreamNet(clip, 1, 0.125, scale_up_mid=True)) == [128, 64, 32]
+    assert mids(SemanticNet(clip, 1, 0.125, scale_up_mid=True)) == [128, 64, 32]
+    laterals = ResNet45_10s(6, 1).lateral_widths
+    shapes = [
+        {k: v.shape for k, v in LingUNetLatDecoder(clip, 1, laterals, 1.0, scale).state_dict().items()}
+        for scale in (False, True)
+    ]
+    assert shapes[0] == shapes[1]
+
+
+def test_agents_build_their_up_blocks_as_scale_up_mid_says() -> None:
+    from cliport.agents import make_agent
+
+    agent = make_agent("two_stream", {"width": 0.125, "clip_weights": "random", "scale_up_mid": True})
+    nets = (agent.pick.net, agent.place.key_net, agent.place.query_net)
+    assert all([up.conv[0].out_channels for up in net.semantic.ups] == [128, 64, 32] for net in nets)
+    assert make_agent("two_stream", {"width": 0.125, "clip_weights": "random"}).config.scale_up_mid is False
