@@ -7,6 +7,11 @@ floating-point operations of one training sample and one act() (convolutions and
 torch.utils.flop_counter counts them; the FFT place correlation is not counted). `--profile` adds the 15
 operations with the most self time (CUDA time on a GPU, CPU time on a CPU) over one training step and
 one act(). `--act-batch N` times act_batch over N observations.
+
+`--lesson` times the language lesson's training step instead (`scripts/quickstart.py --language`: two_stream at
+width 0.125, map_scale 0.5, one place rotation, batches of two holding a contrasting pair, the pick and place halves
+at once), as the lesson's first line probes it, `--steps` timed steps after two warm-up steps, repeated `--repeats`
+times; the report gives the median and every repeat's steps per second, and the machine it ran on.
 """
 
 from __future__ import annotations
@@ -14,7 +19,11 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import os
 import resource
+import statistics
+import sys
+import tempfile
 import time
 from typing import Any
 
@@ -24,6 +33,8 @@ from torch.profiler import ProfilerActivity, profile
 from torch.utils.flop_counter import FlopCounterMode
 
 from cliport.agents import PickPlaceAgent, agent_class, agent_names, make_agent
+from cliport.train.probe import step_seconds
+from cliport.utils.environment import measurement_environment
 
 H, W = 320, 160
 INSTRUCTION = "put the red blocks in a green bowl"
@@ -210,6 +221,33 @@ def bench(
     return result
 
 
+def bench_lesson(device: torch.device, steps: int, repeats: int) -> dict[str, Any]:
+    """Steps per second of the language lesson's training step (its configuration as scripts/quickstart.py
+    --language builds it on ``device``, random CLIP weights), ``repeats`` times ``steps`` steps."""
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    import quickstart  # noqa: PLC0415 - the lesson's configuration lives in the script beside this one
+
+    args = quickstart.parse_args(device.type, ["--language"])
+    with tempfile.TemporaryDirectory() as tmp:
+        config = quickstart.train_config(
+            args, tmp, os.path.join(tmp, "run"), quickstart.place_rotations(args), "random", check_saved=False
+        )
+        rates = [1.0 / step_seconds(config, steps=steps) for _ in range(repeats)]
+    agent_config = config.agent_config
+    return {
+        "agent": config.agent,
+        "width": agent_config.width,
+        "map_scale": agent_config.map_scale,
+        "n_rotations": agent_config.n_rotations,
+        "batch_size": config.batch_size,
+        "pair_contrasts": config.pair_contrasts,
+        "parallel_heads": config.parallel_heads,
+        "steps_per_repeat": steps,
+        "train_steps_per_s": statistics.median(rates),
+        "train_steps_per_s_repeats": rates,
+    }
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0], epilog=EPILOG)
     parser.add_argument("--agent", choices=[*agent_names(), "all"], default="all", help="an agent, or all of them")
@@ -224,8 +262,19 @@ def main() -> None:
     parser.add_argument(
         "--no-optimize", action="store_true", help="turn off the CUDA speed settings (channels_last, bf16 CLIP, ...)"
     )
+    parser.add_argument(
+        "--lesson", action="store_true", help="time the language lesson's training step instead (see the docstring)"
+    )
+    parser.add_argument("--repeats", type=int, default=3, help="with --lesson: how many times to time --steps steps")
     args = parser.parse_args()
     device = torch.device(args.device)
+    if args.lesson:
+        steps = 4 if args.steps is None else args.steps
+        if steps < 1 or args.repeats < 1:
+            parser.error("--steps and --repeats must be >= 1")
+        lesson = {"lesson": bench_lesson(device, steps, args.repeats), "clip_weights": "random"}
+        print(json.dumps({**lesson, "environment": measurement_environment()}, indent=2))
+        return
     width, batch_sizes, steps = DEFAULTS["cuda" if device.type == "cuda" else "cpu"]
     args.width = width if args.width is None else args.width
     args.batch_sizes = batch_sizes if args.batch_sizes is None else args.batch_sizes
@@ -234,6 +283,7 @@ def main() -> None:
         parser.error("--steps and --batch-sizes must be >= 1, --act-batch >= 0 and --width > 0")
     names = agent_names() if args.agent == "all" else [args.agent]
     report: dict[str, Any] = {
+        "environment": measurement_environment(),
         "device": str(device) if device.type != "cuda" else torch.cuda.get_device_name(device),
         "torch_threads": torch.get_num_threads(),
         "amp": args.amp,

@@ -58,10 +58,10 @@ from cliport.utils.run_dir import RunDir
 from cliport.utils.tensorboard import log_result, summary_writer
 
 
-def parse_args(device: str) -> Any:
+def parse_args(device: str, argv: list[str] | None = None) -> Any:
     early = argparse.ArgumentParser(add_help=False)
     early.add_argument("--language", action="store_true")
-    language = early.parse_known_args()[0].language
+    language = early.parse_known_args(argv)[0].language
     setting = device_defaults("quickstart", device, "language" if language else None)
     parser = OneLineParser(prog="quickstart.py", description=__doc__.splitlines()[0])
     parser.add_argument(
@@ -164,12 +164,19 @@ def parse_args(device: str) -> Any:
         help="the agent reads sentence features centred on its training instructions' mean (language agents)",
     )
     parser.add_argument(
+        "--scale-up-mid",
+        action=argparse.BooleanOptionalAction,
+        default=setting.get("scale_up_mid", False),
+        help="below width 1, the language decoders' up-blocks narrow their middle widths with --width too "
+        "(language agents; not the reference's rule, the same net at width 1)",
+    )
+    parser.add_argument(
         "--swap-scenes",
         type=int,
         default=setting.get("swap_scenes", 0),
         help="test scenes on which instruction following is measured (each gives one swap per other block)",
     )
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     for name in ("demos", "steps", "batch_size", "episodes"):
         if getattr(args, name) < 1:
             raise ConfigError(f"--{name.replace('_', '-')} must be at least 1, got {getattr(args, name)}")
@@ -210,6 +217,11 @@ def resolve_clip_weights(args: Any) -> str | None:
     return "random"
 
 
+def place_rotations(args: Any) -> int:
+    """--n-rotations, or 1 where the task's place yaw says nothing (round bowls), else the papers' 36."""
+    return int(args.n_rotations or (36 if tasks.place_yaw_informative(args.task) else 1))
+
+
 def train_config(
     args: Any, data_dir: str, run_dir: str, n_rotations: int, clip: str | None, check_saved: bool = True
 ) -> TrainConfig:
@@ -222,6 +234,7 @@ def train_config(
             agent_config["semantic_encoder"] = args.semantic_encoder
     if agent_class(args.agent).uses_language:
         agent_config["center_sentences"] = args.center_sentences
+        agent_config["scale_up_mid"] = args.scale_up_mid
     config = TrainConfig.build(
         {
             "agent": args.agent,
@@ -313,7 +326,7 @@ def aims_verdict(aims: dict[str, float], result: dict[str, Any], following: dict
 def main() -> None:
     device = "cuda" if torch.cuda.is_available() else "cpu"
     args = parse_args(device)
-    n_rotations = args.n_rotations or (36 if tasks.place_yaw_informative(args.task) else 1)
+    n_rotations = place_rotations(args)
     data_dir, run_dir = os.path.join(args.out, "data"), os.path.join(args.out, "run")
     timings: dict[str, float] = {}
     start = time.perf_counter()

@@ -23,8 +23,9 @@ PROBE_INSTRUCTIONS = ("put the red block in the green bowl", "put the blue block
 def probe_batches(n: int, batch_size: int, pair_contrasts: bool = False) -> list[dict[str, torch.Tensor | list[str]]]:
     """``n`` synthetic training batches of ``batch_size`` samples on images of their own, as training sees them:
     the frozen trunk keeps recent images' features, so an image seen before costs less. ``pair_contrasts``:
-    the samples come in pairs, each image twice under the two instructions in turn, as the contrasting pairs do;
-    at batch 1 the pair is two steps, at batch 2 one batch."""
+    the samples come in pairs, each image twice under the two instructions in turn, as the contrasting pairs do,
+    picking and placing at other pixels (the other instruction names another block and bowl); at batch 1 the pair
+    is two steps, at batch 2 one batch."""
     h, w = heightmap_shape()
     generator = np.random.default_rng(0)
     per_image = 2 if pair_contrasts else 1
@@ -41,8 +42,8 @@ def probe_batches(n: int, batch_size: int, pair_contrasts: bool = False) -> list
         batches.append({
             "color": torch.stack([images[k // per_image][0] for k in samples]),
             "height": torch.stack([images[k // per_image][1] for k in samples]),
-            "pick_pix": torch.tensor([[h // 3, w // 3]] * batch_size),
-            "place_pix": torch.tensor([[2 * h // 3, 2 * w // 3]] * batch_size),
+            "pick_pix": torch.tensor([[h // 3, w // (3 + k % 2)] for k in samples]),
+            "place_pix": torch.tensor([[2 * h // 3, 2 * w // (3 + k % 2)] for k in samples]),
             "place_rot": torch.zeros(batch_size, dtype=torch.long),
             "lang": [PROBE_INSTRUCTIONS[k % 2] for k in samples],
         })  # fmt: skip

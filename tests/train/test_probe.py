@@ -61,4 +61,6 @@ def test_probe_batches_of_two_hold_a_pair_as_training_does() -> None:
     for batch in batches:
         assert torch.equal(batch["color"][1], batch["color"][0]) and torch.equal(batch["height"][1], batch["height"][0])
         assert batch["lang"] == list(probe.PROBE_INSTRUCTIONS)
+        # The other instruction names another block: the pair's picks (and so its place nets' crops) differ.
+        assert not torch.equal(batch["pick_pix"][1], batch["pick_pix"][0])
     assert not torch.equal(batches[1]["color"][0], batches[0]["color"][0])
