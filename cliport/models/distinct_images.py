@@ -14,7 +14,7 @@ Only on the CPU: comparing images reads the values on the host, which a captured
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from dataclasses import dataclass
 
 import torch
 
@@ -22,7 +22,8 @@ import torch
 DISTINCT_DEVICES = {"cpu"}
 
 
-class DistinctImages(NamedTuple):
+@dataclass(frozen=True)
+class DistinctImages:
     """A batch's distinct images (D, C, H, W), in order of first appearance, and each sample's among them (N,)."""
 
     images: torch.Tensor

@@ -35,5 +35,5 @@ class SemanticNet(EncoderNet):
         if sentence is None:
             raise ValueError("the semantic net needs a sentence feature")
         distinct = self.distinct_inputs(x)
-        images, index = (x, None) if distinct is None else distinct
+        images, index = (x, None) if distinct is None else (distinct.images, distinct.index)
         return self.semantic(self.encoder_features(images), sentence, x.shape[-2:], index)

@@ -51,7 +51,7 @@ class TwoStreamNet(EncoderNet):
         if sentence is None:
             raise ValueError("the two-stream net needs a sentence feature")
         distinct = self.distinct_inputs(x)
-        images, index = (x, None) if distinct is None else distinct
+        images, index = (x, None) if distinct is None else (distinct.images, distinct.index)
         spatial, laterals = self.spatial(transporter_normalize(images))
         semantic = self.semantic(self.encoder_features(images), sentence, laterals, x.shape[-2:], index)
         return self.fuse(per_sample(spatial, index), semantic)
