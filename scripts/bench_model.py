@@ -12,6 +12,8 @@ one act(). `--act-batch N` times act_batch over N observations.
 width 0.125, map_scale 0.5, one place rotation, batches of two holding a contrasting pair, the pick and place halves
 at once), as the lesson's first line probes it, `--steps` timed steps after two warm-up steps, repeated `--repeats`
 times; the report gives the median and every repeat's steps per second, and the machine it ran on.
+`--quickstart-args="FLAGS"` passes flags of the lesson to it; write the `=`, as `--quickstart-args=--no-scale-up-mid`
+(a value that starts with "--" needs it).
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ import contextlib
 import json
 import os
 import resource
+import shlex
 import statistics
 import sys
 import tempfile
@@ -34,7 +37,7 @@ from torch.utils.flop_counter import FlopCounterMode
 
 from cliport.agents import PickPlaceAgent, agent_class, agent_names, make_agent
 from cliport.train.probe import step_seconds
-from cliport.utils.environment import measurement_environment
+from cliport.utils.machine import measurement_environment
 
 H, W = 320, 160
 INSTRUCTION = "put the red blocks in a green bowl"
@@ -221,13 +224,13 @@ def bench(
     return result
 
 
-def bench_lesson(device: torch.device, steps: int, repeats: int) -> dict[str, Any]:
+def bench_lesson(device: torch.device, steps: int, repeats: int, flags: list[str] | None = None) -> dict[str, Any]:
     """Steps per second of the language lesson's training step (its configuration as scripts/quickstart.py
-    --language builds it on ``device``, random CLIP weights), ``repeats`` times ``steps`` steps."""
+    --language builds it on ``device`` with ``flags``, random CLIP weights), ``repeats`` times ``steps`` steps."""
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     import quickstart  # noqa: PLC0415 - the lesson's configuration lives in the script beside this one
 
-    args = quickstart.parse_args(device.type, ["--language"])
+    args = quickstart.parse_args(device.type, ["--language", *(flags or [])])
     with tempfile.TemporaryDirectory() as tmp:
         config = quickstart.train_config(
             args, tmp, os.path.join(tmp, "run"), quickstart.place_rotations(args), "random", check_saved=False
@@ -242,6 +245,8 @@ def bench_lesson(device: torch.device, steps: int, repeats: int) -> dict[str, An
         "batch_size": config.batch_size,
         "pair_contrasts": config.pair_contrasts,
         "parallel_heads": config.parallel_heads,
+        "scale_up_mid": getattr(agent_config, "scale_up_mid", None),
+        "quickstart_args": flags or [],
         "steps_per_repeat": steps,
         "train_steps_per_s": statistics.median(rates),
         "train_steps_per_s_repeats": rates,
@@ -266,13 +271,20 @@ def main() -> None:
         "--lesson", action="store_true", help="time the language lesson's training step instead (see the docstring)"
     )
     parser.add_argument("--repeats", type=int, default=3, help="with --lesson: how many times to time --steps steps")
+    parser.add_argument(
+        "--quickstart-args",
+        default="",
+        metavar="FLAGS",
+        help='with --lesson: flags of the lesson, e.g. --quickstart-args="--seed 1"',
+    )
     args = parser.parse_args()
     device = torch.device(args.device)
     if args.lesson:
         steps = 4 if args.steps is None else args.steps
         if steps < 1 or args.repeats < 1:
             parser.error("--steps and --repeats must be >= 1")
-        lesson = {"lesson": bench_lesson(device, steps, args.repeats), "clip_weights": "random"}
+        flags = shlex.split(args.quickstart_args)
+        lesson = {"lesson": bench_lesson(device, steps, args.repeats, flags), "clip_weights": "random"}
         print(json.dumps({**lesson, "environment": measurement_environment()}, indent=2))
         return
     width, batch_sizes, steps = DEFAULTS["cuda" if device.type == "cuda" else "cpu"]

@@ -90,3 +90,9 @@ def measurement_environment(command: list[str] | None = None) -> dict[str, Any]:
         "commit": _commit(),
         "command": " ".join(command if command is not None else [os.path.basename(sys.argv[0]), *sys.argv[1:]]),
     }
+
+
+if __name__ == "__main__":  # python -m cliport.utils.machine: this machine's record, as a results row quotes it
+    import json
+
+    print(json.dumps(measurement_environment(), indent=2))

@@ -4,6 +4,7 @@ import sys
 from pathlib import Path
 
 import pytest
+import torch
 
 SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "bench_model.py"
 TINY = ["--agent", "transporter_only", "--width", "0.125", "--steps", "1"]
@@ -54,3 +55,29 @@ def test_bf16_autocast_runs():
     out = _run(*TINY, "--batch-sizes", "1", "--amp", "bf16")
     assert out.returncode == 0, out.stderr
     assert json.loads(out.stdout)["amp"] == "bf16"
+
+
+@pytest.mark.e2e
+def test_lesson_times_the_lessons_step_and_records_the_machine():
+    out = _run("--lesson", "--steps", "1", "--repeats", "2", "--quickstart-args=--no-scale-up-mid")
+    assert out.returncode == 0, out.stderr
+    report = json.loads(out.stdout)
+    lesson = report["lesson"]
+    assert (lesson["agent"], lesson["width"], lesson["map_scale"], lesson["n_rotations"]) == (
+        "two_stream",
+        0.125,
+        0.5,
+        1,
+    )
+    assert lesson["batch_size"] == 2 and lesson["pair_contrasts"] and lesson["scale_up_mid"] is False
+    assert len(lesson["train_steps_per_s_repeats"]) == 2 and lesson["train_steps_per_s"] > 0
+    environment = report["environment"]
+    assert environment["cpu"]["cores"] >= 1
+    assert environment["versions"]["torch"].split("+")[0] == torch.__version__.split("+")[0]
+    assert "--lesson" in environment["command"]
+
+
+def test_lesson_refuses_no_repeats():
+    out = _run("--lesson", "--repeats", "0")
+    assert out.returncode == 2
+    assert "--repeats" in out.stderr and "Traceback" not in out.stderr
