@@ -145,8 +145,10 @@ def test_the_cpu_lesson_trains_pairs_in_one_batch_cools_its_rate_down_and_checks
         150,
         450,
     )
+    assert cpu.scale_up_mid  # the up-blocks narrowed with the width: half the arithmetic of a step
     cuda = quickstart.parse_args("cuda")  # the GPU lesson's measured settings: batch 1, a constant rate
     assert (cuda.batch_size, cuda.lr, cuda.lr_cooldown, cuda.check_every, cuda.check_start) == (1, 2e-4, 0.0, 300, 900)
+    assert not cuda.scale_up_mid  # the published width: the reference's net either way
     monkeypatch.setattr(sys, "argv", ["quickstart.py", "--language", "--batch-size", "1", "--check-start", "900"])
     assert (quickstart.parse_args("cpu").batch_size, quickstart.parse_args("cpu").check_start) == (1, 900)
     monkeypatch.setattr(sys, "argv", ["quickstart.py"])
@@ -157,7 +159,7 @@ def test_the_cpu_lesson_trains_pairs_in_one_batch_cools_its_rate_down_and_checks
 def test_a_budget_under_the_measured_steps_says_which_minutes_train_them(monkeypatch):
     monkeypatch.setattr(sys, "argv", ["quickstart.py", "--language"])
     quickstart = _quickstart_module()
-    assert quickstart.parse_args("cpu").measured_steps == 700 and quickstart.parse_args("cuda").measured_steps == 0
+    assert quickstart.parse_args("cpu").measured_steps == 1000 and quickstart.parse_args("cuda").measured_steps == 0
     # 1.07 s a step (a 2-core EPYC of family 25): 588 steps in 10.5 minutes; 700 at 1.07 s plus 5 % is 13.1 minutes.
     steps, means = quickstart.budget_means(1.07, 10.5, 4000, 700)
     assert steps == 588 and "fewer than the 700" in means and "--minutes 13.5 " in means
