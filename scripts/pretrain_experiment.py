@@ -28,6 +28,7 @@ from typing import Any
 
 from cliport.cli.common import OneLineParser, run_cli
 from cliport.errors import ConfigError
+from cliport.evaluation.evaluate import success_interval
 from cliport.utils.files import read_json, write_bytes, write_text
 
 TRAIN_TASK = "put-one-block-in-bowl-seen-colors"
@@ -98,7 +99,9 @@ def cell_line(arm: str, n_demos: int, seed: int, results: dict[str, Any], second
             "followed": following.get("followed"),
             "swaps": following.get("n"),
         },
-        "unseen": {k: unseen[k] for k in ("task", "test", "following", "unseen_named", "seen_named", "scenes")},
+        "unseen": {
+            k: unseen[k] for k in ("task", "test", "following", "unseen_named", "seen_named", "by_named", "scenes")
+        },
         "minutes": round(results["seconds"]["total_s"] / 60, 1),
         "wall_minutes": None if seconds is None else round(seconds / 60, 1),
         "results": results["_path"],
@@ -127,6 +130,41 @@ def grid_table(rows: list[dict[str, Any]]) -> str:
             f"| {row['arm']} | {row['demos']} | {row['seed']} | {row.get('steps', '-')} | "
             f"{seen['solved']}/{seen['episodes']} | {seen['followed']}/{seen['swaps']} | "
             f"{named['solved']}/{named['episodes']} | {named['followed']}/{named['swaps']} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def _counted(hits: int, n: int) -> str:
+    """``hits/n (rate %, lo-hi)``: the Wilson 95 % interval of the pooled rate."""
+    if not n:
+        return "-"
+    lo, hi = success_interval(hits, n)
+    return f"{hits}/{n} ({100 * hits / n:.0f} %, {lo:.0f}-{hi:.0f})"
+
+
+def pooled_table(rows: list[dict[str, Any]]) -> str:
+    """Each arm and demo count pooled over its seeds, with 95 % intervals over the pooled episodes and swaps: seen
+    colours, and on the unseen split the swaps naming an unseen block and those naming a seen one."""
+    cells: dict[tuple[str, int], list[dict[str, Any]]] = {}
+    for row in rows:
+        cells.setdefault((row["arm"], row["demos"]), []).append(row)
+    lines = [
+        "| arm | demos | seeds | seen: solved | seen: swaps followed | unseen split: swaps naming an unseen block "
+        "followed | unseen split: swaps naming a seen block followed |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for (arm, demos), group in cells.items():
+        seen = {k: sum(row["seen"][k] or 0 for row in group) for k in ("solved", "episodes", "followed", "swaps")}
+        by_block = {"unseen": [0, 0], "seen": [0, 0]}
+        for row in group:
+            for name, part in row["unseen"].get("by_named", {}).items():
+                pooled = by_block["unseen" if name in ("block_unseen", "both_unseen") else "seen"]
+                pooled[0] += part["followed"]
+                pooled[1] += part["swaps"]
+        lines.append(
+            f"| {arm} | {demos} | {', '.join(str(row['seed']) for row in group)} | "
+            f"{_counted(seen['solved'], seen['episodes'])} | {_counted(seen['followed'], seen['swaps'])} | "
+            f"{_counted(*by_block['unseen'])} | {_counted(*by_block['seen'])} |"
         )
     return "\n".join(lines) + "\n"
 
@@ -209,7 +247,7 @@ def main() -> None:
             f"{unseen['solved']}/{unseen['episodes']}, followed {unseen['followed']}/{unseen['swaps']}"
         )
     rows = sorted(lines.values(), key=lambda row: (row["demos"], ARMS.index(row["arm"]), row["seed"]))
-    write_text(os.path.join(args.out, "grid.md"), grid_table(rows))
+    write_text(os.path.join(args.out, "grid.md"), grid_table(rows) + "\nPooled over seeds:\n\n" + pooled_table(rows))
     plot_curve(rows, os.path.join(args.out, "demo_curve.png"))
     print(
         f"one line per cell: {grid_path}; the table: {os.path.join(args.out, 'grid.md')}; the curve: "

@@ -386,6 +386,11 @@ def main() -> None:
             f"    {name}: solved {other_solved} of {args.episodes}; naming an unseen colour: solved "
             f"{unseen['solved']} of {unseen['episodes']}, swaps followed {unseen['followed']} of {unseen['swaps']}"
         )
+        groups = other_tests[name]["by_named"].items()
+        print("      unseen word: " + "; ".join(
+            f"{group.removesuffix('_unseen')}: solved {part['solved']}/{part['episodes']}, "
+            f"followed {part['followed']}/{part['swaps']}" for group, part in groups
+        ))  # fmt: skip
     timings["evaluation_s"] = time.perf_counter() - mark
     with contextlib.closing(summary_writer(os.path.join(run_dir, "eval", "tensorboard"))) as tensorboard:
         log_result(tensorboard, f"eval/{args.task}/test", result, trained["step"])  # beside training's curves

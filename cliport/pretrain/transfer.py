@@ -5,7 +5,8 @@ put-one-block-in-bowl-unseen-colors draws its test scenes' five colours from CLI
 four of whose seven colours (orange, purple, pink, white) no training demo of the seen split holds; the other
 three (blue, red, green) are seen ones. So :func:`colour_report` splits what it measures by the colours named:
 episodes whose instruction names an unseen block or bowl colour, and swapped instructions naming an unseen block,
-against the rest; it also says which colours the scenes used, so a report shows that the split is what it claims.
+against the rest, and both of them finer by which of the two words is unseen (:data:`NAMED_GROUPS`); it also says
+which colours the scenes used, so a report shows that the split is what it claims.
 """
 
 from __future__ import annotations
@@ -36,34 +37,60 @@ def scene_colors(task_name: str, seeds: list[int], camera_scale: float = 1.0, mo
     return out
 
 
+#: What an instruction's two colour words are, by which of them is unseen: the block's, the bowl's, both, neither.
+NAMED_GROUPS = ("block_unseen", "bowl_unseen", "both_unseen", "neither_unseen")
+
+
+def named_group(block: str, bowl: str) -> str:
+    """The :data:`NAMED_GROUPS` entry of an instruction naming ``block`` and ``bowl``."""
+    block_unseen, bowl_unseen = block in UNSEEN_COLORS, bowl in UNSEEN_COLORS
+    if block_unseen and bowl_unseen:
+        return "both_unseen"
+    return "block_unseen" if block_unseen else "bowl_unseen" if bowl_unseen else "neither_unseen"
+
+
 def _rate(hits: int, n: int) -> float | None:
     return round(hits / n, 4) if n else None
+
+
+def _with_rates(counts: dict[str, int]) -> dict[str, Any]:
+    return {
+        **counts,
+        "solved_rate": _rate(counts["solved"], counts["episodes"]),
+        "followed_rate": _rate(counts["followed"], counts["swaps"]),
+    }
 
 
 def split_by_colour(
     solved: dict[int, bool], colors: dict[int, dict[str, Any]], swaps: list[dict[str, Any]]
 ) -> dict[str, dict[str, Any]]:
-    """Episodes (seed -> solved) and swaps split by the colours named: ``unseen_named`` (an episode whose instruction
-    names an unseen block or bowl colour; a swap naming an unseen block) and ``seen_named`` (the rest), each with
-    counts and rates."""
+    """Episodes (seed -> solved) and swaps (each with its scene's ``seed``) split by the colours named:
+    ``unseen_named`` (an episode whose instruction names an unseen block or bowl colour; a swap naming an unseen
+    block) and ``seen_named`` (the rest), and ``by_named``: both split by :func:`named_group` of the block and bowl
+    the instruction names (a swap names its block and keeps the scene's bowl). Each part holds counts and rates."""
     unseen = set(UNSEEN_COLORS)
-    split = {name: {"episodes": 0, "solved": 0, "swaps": 0, "followed": 0} for name in ("unseen_named", "seen_named")}
+    empty = {"episodes": 0, "solved": 0, "swaps": 0, "followed": 0}
+    split = {name: dict(empty) for name in ("unseen_named", "seen_named")}
+    by_named = {name: dict(empty) for name in NAMED_GROUPS}
     for seed, ok in solved.items():
-        named = {colors[seed]["goal_block"], colors[seed]["goal_bowl"]}
-        group = split["unseen_named" if named & unseen else "seen_named"]
-        group["episodes"] += 1
-        group["solved"] += int(ok)
+        block, bowl = colors[seed]["goal_block"], colors[seed]["goal_bowl"]
+        for group in (
+            split["unseen_named" if {block, bowl} & unseen else "seen_named"],
+            by_named[named_group(block, bowl)],
+        ):
+            group["episodes"] += 1
+            group["solved"] += int(ok)
     for swap in swaps:
-        group = split["unseen_named" if swap["named"] in unseen else "seen_named"]
-        group["swaps"] += 1
-        group["followed"] += int(swap["followed"])
+        bowl = colors[swap["seed"]]["goal_bowl"]
+        for group in (
+            split["unseen_named" if swap["named"] in unseen else "seen_named"],
+            by_named[named_group(swap["named"], bowl)],
+        ):
+            group["swaps"] += 1
+            group["followed"] += int(swap["followed"])
     return {
-        name: {
-            **counts,
-            "solved_rate": _rate(counts["solved"], counts["episodes"]),
-            "followed_rate": _rate(counts["followed"], counts["swaps"]),
-        }
-        for name, counts in split.items()
+        **{name: _with_rates(counts) for name, counts in split.items()},
+        "by_named": {name: _with_rates(counts) for name, counts in by_named.items()},
     }
 
 
@@ -86,8 +113,8 @@ def colour_report(
     of ``task_name`` (put-one-block-in-bowl-seen-colors or -unseen-colors), split by whether the colours named are
     among :data:`~cliport.pretrain.vocabulary.UNSEEN_COLORS` (:func:`split_by_colour`).
 
-    Returns ``test`` (solved of all episodes), ``following`` (of all swaps), ``unseen_named`` and ``seen_named``,
-    ``scenes`` (:func:`scenes_summary`) and the ``swaps`` themselves.
+    Returns ``test`` (solved of all episodes), ``following`` (of all swaps), ``unseen_named``, ``seen_named`` and
+    ``by_named``, ``scenes`` (:func:`scenes_summary`) and the ``swaps`` themselves.
     """
     result = evaluate(agent, task_name, "test", n_episodes, camera_scale=camera_scale)
     seeds = [int(row["seed"]) for row in result["episodes"]]

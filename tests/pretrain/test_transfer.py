@@ -6,7 +6,14 @@ from __future__ import annotations
 import pytest
 
 from cliport.data.seeds import episode_seeds
-from cliport.pretrain.transfer import colour_report, scene_colors, scenes_summary, split_by_colour
+from cliport.pretrain.transfer import (
+    NAMED_GROUPS,
+    colour_report,
+    named_group,
+    scene_colors,
+    scenes_summary,
+    split_by_colour,
+)
 from cliport.pretrain.vocabulary import UNSEEN_COLORS
 from cliport.tasks.colors import EVAL_COLORS, TRAIN_COLORS
 
@@ -33,16 +40,30 @@ def test_split_by_colour_counts_each_episode_and_swap_once() -> None:
         3: {"goal_block": "blue", "goal_bowl": "green", "blocks": ["blue", "red", "white"], "bowls": ["green", "red"]},
     }
     swaps = [
-        {"named": "red", "followed": True},
-        {"named": "blue", "followed": False},
-        {"named": "white", "followed": True},
-        {"named": "pink", "followed": False},
+        {"seed": 1, "named": "red", "followed": True},
+        {"seed": 1, "named": "blue", "followed": False},
+        {"seed": 3, "named": "white", "followed": True},
+        {"seed": 3, "named": "pink", "followed": False},
     ]
     split = split_by_colour({1: True, 3: False}, colors, swaps)
     assert split["unseen_named"] == {"episodes": 1, "solved": 1, "swaps": 2, "followed": 1, "solved_rate": 1.0,
                                      "followed_rate": 0.5}  # fmt: skip
     assert split["seen_named"] == {"episodes": 1, "solved": 0, "swaps": 2, "followed": 1, "solved_rate": 0.0,
                                    "followed_rate": 0.5}  # fmt: skip
+    # scene 1 names pink (unseen) and red; scene 3 blue and green: every swap keeps its scene's bowl, seen in both.
+    by_named = split["by_named"]
+    assert list(by_named) == list(NAMED_GROUPS)
+    assert by_named["block_unseen"] == {"episodes": 1, "solved": 1, "swaps": 2, "followed": 1, "solved_rate": 1.0,
+                                        "followed_rate": 0.5}  # fmt: skip
+    assert by_named["neither_unseen"] == {"episodes": 1, "solved": 0, "swaps": 2, "followed": 1, "solved_rate": 0.0,
+                                          "followed_rate": 0.5}  # fmt: skip
+    assert by_named["bowl_unseen"]["episodes"] == by_named["both_unseen"]["swaps"] == 0
+    assert by_named["bowl_unseen"]["solved_rate"] is None
+
+
+def test_named_group_says_which_word_is_unseen() -> None:
+    assert named_group("pink", "red") == "block_unseen" and named_group("red", "pink") == "bowl_unseen"
+    assert named_group("pink", "white") == "both_unseen" and named_group("red", "green") == "neither_unseen"
 
 
 @pytest.mark.e2e
@@ -56,3 +77,5 @@ def test_colour_report_of_an_agent(tmp_path) -> None:
     assert report["test"]["episodes"] == 2 and report["following"]["n"] == 4 == len(report["swaps"])
     assert report["unseen_named"]["episodes"] + report["seen_named"]["episodes"] == 2
     assert report["unseen_named"]["swaps"] + report["seen_named"]["swaps"] == 4
+    assert sum(part["episodes"] for part in report["by_named"].values()) == 2
+    assert sum(part["swaps"] for part in report["by_named"].values()) == 4
