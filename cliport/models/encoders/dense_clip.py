@@ -1,0 +1,55 @@
+"""Text-aligned features at every position of a frozen open_clip image tower, and their similarity to a sentence.
+
+CLIP aligns text with one pooled embedding per image. The last trunk level already holds, at each position, what
+that pooling averages (MaskCLIP, Zhou et al. 2022): a ModifiedResNet's attention pool is a softmax-weighted sum of
+``c_proj(v_proj(x_j + pos_j))`` over the positions j (per head), so those vectors, taken one position at a time,
+live in the space the text embedding lives in. :func:`dense_embeddings` computes them from the trunk's layer4 (the
+positional embedding resized to the map); for a ViT tower, the analogue is the final norm and projection applied
+to every patch token of the last level. :func:`similarity_map` is their cosine similarity with a sentence feature.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+import torch.nn.functional as F
+
+
+def _resized_grid(pos: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
+    """An attention pool's positional embedding of its grid (S*S, C) as a (1, C, h, w) map resized to ``size``."""
+    grid = round(pos.shape[0] ** 0.5)
+    if grid * grid != pos.shape[0]:
+        raise ValueError(f"the attention pool's {pos.shape[0]} positions are not a square grid")
+    pos = pos.T.reshape(1, -1, grid, grid)
+    if (grid, grid) == tuple(size):
+        return pos
+    return F.interpolate(pos.float(), size=size, mode="bicubic", align_corners=False).to(pos.dtype)
+
+
+def dense_embeddings(visual: Any, layer4: torch.Tensor) -> torch.Tensor:
+    """The open_clip image tower ``visual`` (a ModifiedResNet or a VisionTransformer) and its last trunk level
+    (N, C, h, w) -> (N, E, h, w): at each position, the image embedding space's vector (E: the tower's
+    ``output_dim``, that of the text embedding).
+
+    ModifiedResNet: ``c_proj(v_proj(x + pos))`` of its attention pool, ``pos`` resized bicubically to (h, w).
+    VisionTransformer: ``ln_post(x) @ proj`` of each token of the level."""
+    n, c, h, w = layer4.shape
+    tokens = layer4.flatten(2).transpose(1, 2)  # (N, hw, C)
+    pool = getattr(visual, "attnpool", None)
+    if pool is not None:
+        pos = _resized_grid(pool.positional_embedding[1:], (h, w)).flatten(2).transpose(1, 2)
+        out = F.linear(F.linear(tokens + pos.to(tokens.dtype), pool.v_proj.weight, pool.v_proj.bias),
+                       pool.c_proj.weight, pool.c_proj.bias)  # fmt: skip
+    elif getattr(visual, "proj", None) is not None and hasattr(visual, "ln_post"):
+        out = visual.ln_post(tokens) @ visual.proj
+    else:
+        raise ValueError(f"no dense embeddings for an image tower of type {type(visual).__name__}")
+    return out.transpose(1, 2).reshape(n, -1, h, w)
+
+
+def similarity_map(dense: torch.Tensor, text: torch.Tensor) -> torch.Tensor:
+    """Dense embeddings (N, E, h, w) and text embeddings (N, E) -> their cosine similarity (N, 1, h, w)."""
+    if dense.shape[:2] != text.shape:
+        raise ValueError(f"dense embeddings {tuple(dense.shape)} and text {tuple(text.shape)} differ in N or E")
+    return torch.einsum("nehw,ne->nhw", F.normalize(dense, dim=1), F.normalize(text, dim=1)).unsqueeze(1)
