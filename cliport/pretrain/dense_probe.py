@@ -1,0 +1,90 @@
+"""Dense retrieval on the lesson's scenes: does an encoder's text-aligned map find the block a colour word names?
+
+For each scene of a put-one-block-in-bowl-* task, the frozen encoder reads the top-down colour map the agents read
+(resized by ``scale``), :func:`~cliport.models.encoders.dense_clip.dense_embeddings` gives its embedding at every
+trunk position, and each of the scene's three block colours is captioned as the pretraining probe captions it
+("a red block"). The caption's similarity map, resized to the map, is averaged over each block's pixels (the
+oracle camera's object ids); the caption is **found** when the block it names scores highest of the three. That is
+the pick a policy reading only this map would make for a swapped instruction: chance is one in three. Seen and
+unseen colours (:data:`~cliport.pretrain.vocabulary.UNSEEN_COLORS`) are counted apart.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from cliport.evaluation.instruction_following import lesson_task
+from cliport.models.encoders.clip_encoder import FrozenCLIP
+from cliport.models.encoders.dense_clip import dense_embeddings
+from cliport.pretrain.vocabulary import UNSEEN_COLORS, probe_color_caption
+
+STRIDE = 32  # the trunk's last level: the image is padded to a multiple of it
+
+
+def caption_maps(encoder: FrozenCLIP, color: np.ndarray, captions: list[str], scale: float) -> torch.Tensor:
+    """A top-down colour map (H, W, 3) uint8 and C captions -> their cosine-similarity maps (C, H, W), the image
+    read at ``scale`` times its size (padded to a multiple of the trunk's stride) and the maps resized back."""
+    h, w = color.shape[:2]
+    rgb = torch.from_numpy(np.ascontiguousarray(color)).permute(2, 0, 1)[None].float() / 255.0
+    size = (max(1, round(h * scale)), max(1, round(w * scale)))
+    rgb = F.interpolate(rgb, size=size, mode="bilinear", align_corners=False, antialias=True)
+    pad = (-size[1] % STRIDE, -size[0] % STRIDE)
+    rgb = F.pad(rgb, (0, pad[0], 0, pad[1]))
+    with torch.no_grad():
+        dense = dense_embeddings(encoder.model.visual, encoder.image_features(rgb)[-1])[0]  # (E, h', w')
+        text = F.normalize(encoder.sentence_features(captions), dim=1)  # (C, E)
+        maps = torch.einsum("ehw,ce->chw", F.normalize(dense, dim=0), text)[None]
+        maps = F.interpolate(maps, size=rgb.shape[-2:], mode="bilinear", align_corners=False)
+    return F.interpolate(maps[..., : size[0], : size[1]], size=(h, w), mode="bilinear", align_corners=False)[0]
+
+
+def block_scores(maps: torch.Tensor, masks: dict[str, np.ndarray]) -> dict[str, torch.Tensor]:
+    """Caption maps (C, H, W) and each block's pixels (H, W) bool -> per block, its mean under each map (C,)."""
+    return {name: maps[:, torch.from_numpy(mask)].mean(dim=1) for name, mask in masks.items() if mask.any()}
+
+
+def found(scores: dict[str, torch.Tensor]) -> dict[str, bool]:
+    """Per block, its mean under each caption (B,), the c-th caption naming the c-th block -> per block, whether it
+    scores highest of the scene's blocks under the caption that names it."""
+    names = list(scores)
+    table = torch.stack([scores[name] for name in names])  # (blocks, captions)
+    return {name: names[int(table[:, c].argmax())] == name for c, name in enumerate(names)}
+
+
+def dense_retrieval(
+    encoder: FrozenCLIP,
+    task_name: str,
+    seeds: Iterable[int],
+    scale: float = 1.0,
+    camera_scale: float = 1.0,
+    mode: str = "test",
+) -> dict[str, Any]:
+    """Each scene of ``seeds``: every block colour captioned and looked for (module docstring). Returns
+    ``{"seen": {"found", "n", "rate"}, "unseen": {...}, "scenes": n, "scale": scale, "records": [...]}``."""
+    from cliport.env.environment import EnvConfig, Environment
+
+    task = lesson_task(task_name, mode, "dense retrieval")
+    records = []
+    with Environment(EnvConfig.defaults(camera_scale=camera_scale), task=task) as env:
+        for seed in seeds:
+            obs = env.reset(seed=int(seed))
+            _, ids = env.oracle_heightmap()
+            masks = {name: ids == body for name, body in task.block_colors.items()}
+            if obs["color"].shape[:2] != ids.shape:
+                raise ValueError(f"the colour map {obs['color'].shape[:2]} and the object ids {ids.shape} differ")
+            names = [name for name, mask in masks.items() if mask.any()]
+            captions = [probe_color_caption(name) for name in names]
+            scores = block_scores(caption_maps(encoder, obs["color"], captions, scale), {n: masks[n] for n in names})
+            for name, ok in found(scores).items():
+                records.append({"seed": int(seed), "color": name, "unseen": name in UNSEEN_COLORS, "found": ok})
+    out: dict[str, Any] = {}
+    for part, unseen in (("seen", False), ("unseen", True)):
+        rows = [r for r in records if r["unseen"] is unseen]
+        hits = sum(r["found"] for r in rows)
+        out[part] = {"found": hits, "n": len(rows), "rate": round(hits / len(rows), 4) if rows else None}
+    return {**out, "scenes": len({r["seed"] for r in records}), "scale": scale, "records": records}
