@@ -69,7 +69,7 @@ def dense_retrieval(
     from cliport.env.environment import EnvConfig, Environment
 
     task = lesson_task(task_name, mode, "dense retrieval")
-    records = []
+    records: list[dict[str, Any]] = []
     with Environment(EnvConfig.defaults(camera_scale=camera_scale), task=task) as env:
         for seed in seeds:
             obs = env.reset(seed=int(seed))
