@@ -171,6 +171,13 @@ def parse_args(device: str, argv: list[str] | None = None) -> Any:
         "(language agents; not the reference's rule, the same net at width 1)",
     )
     parser.add_argument(
+        "--similarity-maps",
+        action=argparse.BooleanOptionalAction,
+        default=setting.get("similarity_maps", False),
+        help="two_stream: CLIP's dense image-text similarity to the instruction and its phrases joins the "
+        "semantic decoder's laterals (not the reference's net; see docs/pretraining.md)",
+    )
+    parser.add_argument(
         "--swap-scenes",
         type=int,
         default=setting.get("swap_scenes", 0),
@@ -235,6 +242,8 @@ def train_config(
     if agent_class(args.agent).uses_language:
         agent_config["center_sentences"] = args.center_sentences
         agent_config["scale_up_mid"] = args.scale_up_mid
+    if args.similarity_maps:
+        agent_config["similarity_maps"] = True
     config = TrainConfig.build(
         {
             "agent": args.agent,

@@ -129,15 +129,19 @@ class PickPlaceAgent(nn.Module):
         return out
 
     def sentence_features(self, lang: list[str] | None) -> torch.Tensor | None:
-        """(B,) instructions -> (B, sentence_dim) frozen-encoder sentence features (cached per string),
-        or None for agents that do not read language."""
+        """(B,) instructions -> (B, sentence_dim) frozen-encoder sentence features (cached per string), or None
+        for agents that do not read language; with ``similarity_maps``, (B, (1 + SIMILARITY_MAPS) * sentence_dim):
+        the text embeddings of :func:`~cliport.agents.sentences.similarity_texts` after them."""
         if not self.uses_language:
             return None
         assert self.encoder is not None
-        features = self.encoder.sentence_features(sentences.check_instructions(self.name, lang))
-        if not self.centers_sentences:
-            return features
-        return sentences.centred(features, self.sentence_mean, self.sentence_scale, self._sentences_fitted)
+        texts = sentences.check_instructions(self.name, lang)
+        features = self.encoder.sentence_features(texts)
+        if self.centers_sentences:
+            features = sentences.centred(features, self.sentence_mean, self.sentence_scale, self._sentences_fitted)
+        if getattr(self.config, "similarity_maps", False):
+            features = torch.cat([features, sentences.similarity_texts(self.encoder, texts)], dim=1)
+        return features
 
     def fit_sentence_centering(self, instructions: list[str]) -> dict[str, float]:
         """Fit the centring of ``center_sentences`` to ``instructions`` (the training set's): the mean of their

@@ -92,6 +92,10 @@ class CLIPConfig(LanguageConfig):
         per_net_clip_stats: each net (pick, key, query) keeps its own copy of the CLIP trunk's batch-norm
             statistics, as the reference's checkpoints do (cliport-convert sets it); false: the one
             shared CLIP's own statistics.
+        similarity_maps: two_stream only: the cosine similarity of CLIP's dense text-aligned image embeddings
+            with the instruction's and its first two phrases' text embeddings (three maps at the trunk's last
+            level) joins every spatial lateral of the semantic decoder, so that the nets can find a word where
+            CLIP's shared image-text space places it, seen in the demos or not. Not the reference's net.
     """
 
     weight_sources: ClassVar[tuple[str, ...]] = ("clip_weights",)
@@ -99,6 +103,7 @@ class CLIPConfig(LanguageConfig):
     clip_weights: str
     semantic_encoder: str
     per_net_clip_stats: bool
+    similarity_maps: bool
 
     def validate(self) -> None:
         """As :meth:`AgentConfig.validate`, and the encoder name must be an open_clip model we can use."""

@@ -5,6 +5,9 @@ Centring subtracts the mean of the training set's distinct instructions' feature
 over their centred RMS norm, so that what the instructions share does not drown what tells them apart. The two
 numbers live in the agent's ``sentence_mean`` and ``sentence_scale`` buffers (saved with its weights); they are
 fitted once, when training starts (:func:`fit_centering`).
+
+An agent with ``similarity_maps`` appends, after them, the unit text embeddings its nets compare with the image's
+dense embeddings (:func:`similarity_texts`): the instruction's and its phrases', never centred.
 """
 
 from __future__ import annotations
@@ -12,6 +15,7 @@ from __future__ import annotations
 import torch
 
 from cliport.models.encoders.base import FrozenEncoder
+from cliport.models.encoders.dense_clip import SIMILARITY_MAPS, instruction_phrases
 
 
 def check_instructions(agent_name: str, lang: list[str] | None) -> list[str]:
@@ -61,3 +65,16 @@ def act_instructions(instructions: list[str | None]) -> list[str] | None:
     if len(texts) != len(instructions):
         raise ValueError("an act batch mixes instructions with None: give every observation one, or none")
     return texts
+
+
+def similarity_texts(encoder: FrozenEncoder, texts: list[str]) -> torch.Tensor:
+    """(B,) instructions -> (B, SIMILARITY_MAPS * sentence_dim): per instruction, the unit-norm text embeddings of
+    the instruction and of its phrases (:func:`~cliport.models.encoders.dense_clip.instruction_phrases`), zeros
+    for a phrase it does not have."""
+    rows = []
+    for text in texts:
+        named = [text, *instruction_phrases(text)]
+        features = torch.nn.functional.normalize(encoder.sentence_features(named), dim=1)
+        missing = SIMILARITY_MAPS - len(named)
+        rows.append(torch.cat([features.flatten(), features.new_zeros(missing * encoder.sentence_dim)]))
+    return torch.stack(rows)

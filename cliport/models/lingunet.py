@@ -111,6 +111,8 @@ class LingUNetLatDecoder(nn.Module):
     six up-steps is fused (concat -> ReLU -> 1x1 conv, :class:`~cliport.models.fusion.LateralFusion`) with the
     spatial stream's lateral of the same resolution. ``lateral_widths``: the six laterals' channels
     (strides 16, 8, 4, 2, 1, 1/2), :attr:`ResNet45_10s.lateral_widths <cliport.models.resnet.ResNet45_10s>`.
+    ``extra_laterals``: that many more channels beside each lateral (the maps :meth:`forward` takes as ``extra``,
+    resized to each lateral's resolution); 0 is the reference's net.
     """
 
     def __init__(
@@ -120,10 +122,11 @@ class LingUNetLatDecoder(nn.Module):
         lateral_widths: tuple[int, ...],
         width: float = 1.0,
         scale_up_mid: bool = False,
+        extra_laterals: int = 0,
     ) -> None:
         super().__init__()
         _, w512, w256, w128, w64, w32, w16 = _widths(width)
-        lat16, lat8, lat4, lat2, lat1, lat_half = lateral_widths
+        lat16, lat8, lat4, lat2, lat1, lat_half = (c + extra_laterals for c in lateral_widths)
         # text_fc, lang_proj1..3, conv1, up1..3, layer1..3
         self.sentence_fc, self.gates, self.bottleneck, self.ups, self.stages = _unet(encoder, width, scale_up_mid)
         self.fusions = nn.ModuleList(  # lat_fusion1..6
@@ -145,17 +148,23 @@ class LingUNetLatDecoder(nn.Module):
         laterals: list[torch.Tensor],
         out_size: tuple[int, int],
         index: torch.Tensor | None = None,
+        extra: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """Trunk features [stem, layer1..4] of an (N, 3, H, W) image, sentence (N, sentence_dim), the six
         spatial laterals (strides 16, 8, 4, 2, 1, 1/2), out_size (H, W) -> (N, out_ch, H, W). ``index`` (N,):
         the trunk features and laterals are of D distinct images, sample n's being ``index[n]``
-        (:mod:`~cliport.models.distinct_images`); the image-only layers run once per image."""
+        (:mod:`~cliport.models.distinct_images`); the image-only layers run once per image. ``extra``
+        (N, extra_laterals, h, w): maps joined to every lateral, each resized to its resolution."""
         _, l1, l2, l3, l4 = trunk
         lang_proj1, lang_proj2, lang_proj3 = self.gates
         up1, up2, up3 = self.ups
         layer1, layer2, layer3 = self.stages
         lat_fusion1, lat_fusion2, lat_fusion3, lat_fusion4, lat_fusion5, lat_fusion6 = self.fusions
-        lat16, lat8, lat4, lat2, lat1, lat_half = (per_sample(lateral, index) for lateral in laterals)
+        lat16, lat8, lat4, lat2, lat1, lat_half = (
+            per_sample(lateral, index) if extra is None
+            else torch.cat([per_sample(lateral, index), resize(extra, lateral.shape[-2:])], dim=1)
+            for lateral in laterals
+        )  # fmt: skip
         if self.sentence_fc is not None:
             sentence = self.sentence_fc(sentence)
 

@@ -10,10 +10,12 @@ two, and ``FusionAdd`` (pick) or ``FusionConv`` (key, query) over their outputs.
 from __future__ import annotations
 
 import torch
+import torch.nn.functional as F
 
 from cliport.models.distinct_images import per_sample
 from cliport.models.encoder_net import EncoderNet
 from cliport.models.encoders.base import FrozenEncoder
+from cliport.models.encoders.dense_clip import SIMILARITY_MAPS
 from cliport.models.fusion import AddFusion, ConvFusion
 from cliport.models.lingunet import LingUNetLatDecoder
 from cliport.models.preprocess import IN_CHANNELS, transporter_normalize
@@ -27,7 +29,9 @@ class TwoStreamNet(EncoderNet):
     The spatial stream's six laterals feed the semantic decoder. ``conv_fusion``: False sums the two streams'
     outputs (the reference's pick nets); True applies ReLU + 1x1 conv (2 * out_ch -> out_ch, no bias) to
     [spatial, semantic] (its key and query nets). ``per_net_clip_stats``: see :class:`EncoderNet`;
-    ``scale_up_mid``: see :class:`~cliport.models.lingunet.LingUNetLatDecoder`.
+    ``scale_up_mid``: see :class:`~cliport.models.lingunet.LingUNetLatDecoder`. ``similarity_maps``: the cosine of
+    the frozen encoder's dense text-aligned embeddings (:mod:`~cliport.models.encoders.dense_clip`) with the
+    instruction's and its phrases' text embeddings joins the spatial laterals (not the reference's net).
     A batch that repeats an image (a contrasting pair, a scene under several instructions) runs the spatial stream,
     the trunk and the decoder's image-only layers once per distinct image (:mod:`~cliport.models.distinct_images`).
     """
@@ -40,18 +44,38 @@ class TwoStreamNet(EncoderNet):
         conv_fusion: bool = False,
         per_net_clip_stats: bool = False,
         scale_up_mid: bool = False,
+        similarity_maps: bool = False,
     ) -> None:
         super().__init__(encoder, per_net_clip_stats)
         self.spatial = ResNet45_10s(IN_CHANNELS, out_ch, width)
-        self.semantic = LingUNetLatDecoder(encoder, out_ch, self.spatial.lateral_widths, width, scale_up_mid)
+        #: How many similarity maps join the laterals (:data:`~cliport.models.encoders.dense_clip.SIMILARITY_MAPS`).
+        self.n_maps = SIMILARITY_MAPS if similarity_maps else 0
+        self.semantic = LingUNetLatDecoder(
+            encoder, out_ch, self.spatial.lateral_widths, width, scale_up_mid, extra_laterals=self.n_maps
+        )
         self.fuse = ConvFusion(out_ch) if conv_fusion else AddFusion()
 
     def forward(self, x: torch.Tensor, sentence: torch.Tensor | None = None) -> torch.Tensor:
-        """Raw (N, 6, H, W) (H, W multiples of 32), sentence (N, sentence_dim) -> (N, out_ch, H, W)."""
+        """Raw (N, 6, H, W) (H, W multiples of 32), sentence (N, sentence_dim) -> (N, out_ch, H, W).
+
+        With ``similarity_maps``, sentence is (N, (1 + n_maps) * sentence_dim): the feature the gates read, then
+        n_maps unit text embeddings (:func:`~cliport.agents.sentences.similarity_texts`); their cosine with the
+        frozen encoder's dense embeddings of the image joins every lateral."""
         if sentence is None:
             raise ValueError("the two-stream net needs a sentence feature")
+        texts = None
+        if self.n_maps:
+            dim = self.encoder.sentence_dim
+            if sentence.shape[1] != (1 + self.n_maps) * dim:
+                raise ValueError(f"a net with similarity maps reads {(1 + self.n_maps) * dim} sentence channels")
+            sentence, texts = sentence[:, :dim], sentence[:, dim:].unflatten(1, (self.n_maps, dim))
         distinct = self.distinct_inputs(x)
         images, index = (x, None) if distinct is None else (distinct.images, distinct.index)
         spatial, laterals = self.spatial(transporter_normalize(images))
-        semantic = self.semantic(self.encoder_features(images), sentence, laterals, x.shape[-2:], index)
+        trunk = self.encoder_features(images)
+        maps = None
+        if texts is not None:
+            dense = F.normalize(per_sample(self.encoder.dense_embeddings(trunk[-1]), index), dim=1)
+            maps = torch.einsum("nehw,nke->nkhw", dense, texts)
+        semantic = self.semantic(trunk, sentence, laterals, x.shape[-2:], index, maps)
         return self.fuse(per_sample(spatial, index), semantic)

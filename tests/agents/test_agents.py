@@ -12,6 +12,8 @@ import torch
 from cliport.agents import PickPlaceAgent, agent_class, agent_names, load_agent, make_agent, make_config
 from cliport.agents.config import AgentConfig, CLIPConfig
 from cliport.errors import ConfigError, UnknownNameError
+from cliport.models.encoders.dense_clip import SIMILARITY_MAPS, instruction_phrases
+from cliport.models.preprocess import raw_input
 
 H, W = 64, 32
 RED_BLOCK, GREEN_BOWL, BLUE_BLOCK, YELLOW_BOWL = (11, 7), (45, 23), (33, 23), (55, 7)
@@ -296,3 +298,76 @@ def test_real_size_forward(name: str) -> None:
     out = agent.act(obs, "put the red block in the green bowl")
     assert out["pick_heatmap"].shape == (320, 160) and out["place_heatmap"].shape == (320, 160)
     assert 0 <= out["place_rot"] < 2 * math.pi
+
+
+# two_stream's similarity_maps: CLIP's dense image-text similarity to the instruction and its phrases joins the
+# semantic decoder's laterals; off, the net is the reference's.
+
+SIMILARITY_INSTRUCTION = "put the red block in the green bowl"
+
+
+def _similarity_config(tiny_config, **overrides: object) -> dict[str, object]:
+    return tiny_config("two_stream", semantic_encoder="cliport-RN-tiny", **overrides)
+
+
+def test_phrases_run_from_an_article_to_a_preposition() -> None:
+    assert instruction_phrases("put the pink block in the red bowl") == ["the pink block", "the red bowl"]
+    assert instruction_phrases("Pack the hammer, then the blue box.") == ["the hammer", "the blue box"]
+    assert instruction_phrases("put a white block on the brown block", n=1) == ["a white block"]
+    assert instruction_phrases("done placing blocks") == []
+
+
+def test_similarity_maps_widen_only_the_laterals_and_the_sentence(tiny_config) -> None:
+    torch.manual_seed(0)
+    plain = make_agent("two_stream", _similarity_config(tiny_config))
+    torch.manual_seed(0)
+    maps = make_agent("two_stream", _similarity_config(tiny_config, similarity_maps=True))
+    plain_state, maps_state = plain.state_dict(), maps.state_dict()
+    assert plain_state.keys() == maps_state.keys()
+    widened = {k for k in plain_state if plain_state[k].shape != maps_state[k].shape}
+    assert widened and all(".semantic.fusions." in k for k in widened)
+    for k in widened:  # the 1x1 lateral fusion convs read SIMILARITY_MAPS more channels
+        assert maps_state[k].shape[1] == plain_state[k].shape[1] + SIMILARITY_MAPS
+    dim = maps.encoder.sentence_dim
+    assert plain.sentence_features([SIMILARITY_INSTRUCTION]).shape == (1, dim)
+    features = maps.sentence_features([SIMILARITY_INSTRUCTION])
+    assert features.shape == (1, (1 + SIMILARITY_MAPS) * dim)
+    texts = features[0, dim:].view(SIMILARITY_MAPS, dim)
+    torch.testing.assert_close(texts.norm(dim=1), torch.ones(SIMILARITY_MAPS))
+    torch.testing.assert_close(features[0, :dim], plain.sentence_features([SIMILARITY_INSTRUCTION])[0])
+
+
+def test_similarity_maps_carry_the_phrases_into_the_pick(tiny_config) -> None:
+    """The same gate feature with other phrase embeddings gives another pick map: the maps are read."""
+    torch.manual_seed(0)
+    agent = make_agent("two_stream", _similarity_config(tiny_config, similarity_maps=True))
+    inputs = agent.training_inputs(_batch([(RED_BLOCK, GREEN_BOWL, 3, SIMILARITY_INSTRUCTION)]))
+    sentence = agent.sentence_features([SIMILARITY_INSTRUCTION])
+    other = agent.sentence_features(["put the blue block in the yellow bowl"])
+    swapped = torch.cat([sentence[:, : agent.encoder.sentence_dim], other[:, agent.encoder.sentence_dim :]], dim=1)
+    raw = raw_input(inputs["color"], inputs["height"])
+    with torch.no_grad():
+        own, moved = agent.pick.net(raw, sentence), agent.pick.net(raw, swapped)
+    assert not torch.allclose(own, moved)
+    with pytest.raises(ValueError, match="reads 1024 sentence channels"):
+        agent.pick.net(raw, sentence[:, : agent.encoder.sentence_dim])
+
+
+def test_similarity_maps_train_and_round_trip(tiny_config, tmp_path: Path) -> None:
+    torch.manual_seed(0)
+    agent = make_agent("two_stream", _similarity_config(tiny_config, similarity_maps=True, lr=5e-4))
+    batch = _batch([(RED_BLOCK, GREEN_BOWL, 3, SIMILARITY_INSTRUCTION)])
+    optimizer = agent.make_optimizer()
+    losses = [agent.train_step(batch, optimizer)["loss"] for _ in range(4)]
+    assert losses[-1] < losses[0]
+    path = tmp_path / "agent.pt"
+    agent.save_checkpoint(path)
+    assert torch.load(path, weights_only=True)["config"]["similarity_maps"] is True
+    loaded = load_agent(path)
+    assert loaded.config.similarity_maps
+    _assert_same_act(agent, loaded, SIMILARITY_INSTRUCTION)
+
+
+def test_clip_only_refuses_similarity_maps(tiny_config) -> None:
+    with pytest.raises(ConfigError, match="similarity_maps is an option of the two_stream agent"):
+        make_agent("clip_only", tiny_config("clip_only", semantic_encoder="cliport-RN-tiny", similarity_maps=True))

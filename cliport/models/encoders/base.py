@@ -68,6 +68,11 @@ class FrozenEncoder(nn.Module):
         """``{agent config field: weight source}`` of each pretrained part, e.g. ``{"clip_weights": "openai"}``."""
         raise NotImplementedError
 
+    def dense_embeddings(self, layer4: torch.Tensor) -> torch.Tensor:
+        """The last trunk level (N, C, h, w) -> text-aligned embeddings (N, sentence_dim, h, w) at each position;
+        only encoders whose image and text share an embedding space (CLIP) have them."""
+        raise ValueError(f"{type(self).__name__} has no image-text embedding space: similarity maps need a CLIP")
+
     def image_module(self) -> nn.Module:
         """The image trunk's module (its dtype is switched to bfloat16 on CUDA, see :meth:`set_image_dtype`)."""
         raise NotImplementedError

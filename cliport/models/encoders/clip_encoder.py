@@ -28,6 +28,7 @@ from cliport.models.encoders.clip_registry import MODEL_NAME, UnsupportedEncoder
 from cliport.models.encoders.clip_tokenizer import count_tokens, load_tokenizer
 from cliport.models.encoders.clip_vit import vit_block_indices, vit_levels
 from cliport.models.encoders.clip_weights import build_clip_model
+from cliport.models.encoders.dense_clip import dense_embeddings
 
 # The default model's sentence width and trunk channels (stem, layer1..layer4 at strides 4, 4, 8, 16, 32);
 # other models have their own, see FrozenCLIP.trunk_channels and FrozenCLIP.sentence_dim.
@@ -129,6 +130,10 @@ class FrozenCLIP(FrozenEncoder):
         if self.vit_blocks is not None:
             return vit_levels(self.model.visual, self.vit_blocks, x)
         return self.model.visual.forward_intermediates(x, intermediates_only=True)["image_intermediates"]
+
+    def dense_embeddings(self, layer4: torch.Tensor) -> torch.Tensor:
+        with torch.no_grad():
+            return dense_embeddings(self.model.visual, layer4.to(self.image_dtype())).float()
 
     def _encode_sentences(self, texts: list[str]) -> torch.Tensor:
         return self.model.encode_text(self._tokenizer(texts).to(self.mean.device))

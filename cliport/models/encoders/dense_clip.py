@@ -6,6 +6,11 @@ that pooling averages (MaskCLIP, Zhou et al. 2022): a ModifiedResNet's attention
 live in the space the text embedding lives in. :func:`dense_embeddings` computes them from the trunk's layer4 (the
 positional embedding resized to the map); for a ViT tower, the analogue is the final norm and projection applied
 to every patch token of the last level. :func:`similarity_map` is their cosine similarity with a sentence feature.
+
+A two-stream net with ``similarity_maps`` reads :data:`SIMILARITY_MAPS` such maps as extra lateral channels: the
+instruction's, and those of its first two phrases (:func:`instruction_phrases`: "the pink block", "the red bowl"),
+so that what the net learns to do with a map ("pick where the first phrase is") holds for words its demos never
+showed, as far as the encoder's map finds them.
 """
 
 from __future__ import annotations
@@ -14,6 +19,34 @@ from typing import Any
 
 import torch
 import torch.nn.functional as F
+
+#: The maps a net with ``similarity_maps`` reads: the whole instruction's and its first two phrases'.
+SIMILARITY_MAPS = 3
+_ARTICLES = frozenset({"the", "a", "an"})
+_BREAKS = frozenset(
+    {"in", "on", "into", "onto", "to", "of", "from", "with", "and", "at", "inside", "under", "above", "beside", "by",
+     "near", "next", "left", "right", "front", "behind", "then"}
+)  # fmt: skip
+
+
+def instruction_phrases(text: str, n: int = SIMILARITY_MAPS - 1) -> list[str]:
+    """The first ``n`` phrases of an instruction, each from an article to the next preposition, article or end:
+    "put the pink block in the red bowl" -> ["the pink block", "the red bowl"]; fewer where it has fewer."""
+    phrases: list[list[str]] = []
+    current: list[str] | None = None
+    for word in text.lower().replace(",", " ").replace(".", " ").split():
+        if word in _ARTICLES:
+            if current:
+                phrases.append(current)
+            current = [word]
+        elif current is not None and word in _BREAKS:
+            phrases.append(current)
+            current = None
+        elif current is not None:
+            current.append(word)
+    if current:
+        phrases.append(current)
+    return [" ".join(words) for words in phrases if len(words) > 1][:n]
 
 
 def _resized_grid(pos: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
