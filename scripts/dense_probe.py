@@ -1,4 +1,4 @@
-"""Dense retrieval on the language lesson's scenes (cliport/pretrain/dense_probe.py): how often the similarity map
+"""Dense retrieval on the language lesson's scenes (cliport/pretrain/dense_retrieval.py): how often the similarity map
 of an encoder's dense text-aligned embeddings with "a red block" is highest on the red block, of the scene's three,
 seen and unseen colours apart, at each image scale asked for. Prints one JSON object (and writes it to --out).
 
@@ -31,7 +31,7 @@ def main() -> None:
         raise ConfigError(f"--scenes must be >= 1 and --scales > 0, got {args.scenes} and {args.scales}")
     from cliport.data.seeds import episode_seeds
     from cliport.models.encoders.clip_encoder import load_clip
-    from cliport.pretrain.dense_probe import dense_retrieval
+    from cliport.pretrain.dense_retrieval import dense_retrieval
 
     model = args.semantic_encoder
     if model is None:

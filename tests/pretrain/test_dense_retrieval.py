@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from cliport.models.encoders.clip_encoder import load_clip
-from cliport.pretrain.dense_probe import block_scores, caption_maps, dense_retrieval, found
+from cliport.pretrain.dense_retrieval import block_scores, caption_maps, dense_retrieval, found
 
 
 def _masks() -> dict[str, np.ndarray]:
