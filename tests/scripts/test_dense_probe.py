@@ -5,6 +5,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "dense_probe.py"
 
 
@@ -19,6 +21,7 @@ def test_bad_input_is_one_line(one_error_line):
     one_error_line(done.returncode, done.stderr, "--clip-weights random needs --semantic-encoder")
 
 
+@pytest.mark.e2e  # the library's own test covers the same path in the default tier
 def test_probes_a_scene_at_a_scale_and_writes_its_json(tmp_path):
     out = tmp_path / "dense.json"
     done = _run("--clip-weights", "random", "--semantic-encoder", "cliport-RN-tiny", "--scenes", "1",
