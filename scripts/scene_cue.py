@@ -17,9 +17,10 @@ import sys
 import numpy as np
 
 from cliport.cli.common import OneLineParser, run_cli
+from cliport.env import heightmap
 from cliport.errors import ConfigError
 
-BOUNDS = np.array([[0.25, 0.75], [-0.5, 0.5]])  # the workspace's x and y (m), as cliport/env/heightmap.py
+BOUNDS = heightmap.BOUNDS[:2]  # the workspace's x and y (m)
 FEATURES = ("centre distance", "nearest of its kind", "nearest of the other kind", "edge distance", "x", "|y|")
 
 

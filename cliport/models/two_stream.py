@@ -10,12 +10,11 @@ two, and ``FusionAdd`` (pick) or ``FusionConv`` (key, query) over their outputs.
 from __future__ import annotations
 
 import torch
-import torch.nn.functional as F
 
 from cliport.models.distinct_images import per_sample
 from cliport.models.encoder_net import EncoderNet
 from cliport.models.encoders.base import FrozenEncoder
-from cliport.models.encoders.dense_clip import SIMILARITY_MAPS
+from cliport.models.encoders.dense_clip import SIMILARITY_MAPS, similarity_map
 from cliport.models.fusion import AddFusion, ConvFusion
 from cliport.models.lingunet import LingUNetLatDecoder
 from cliport.models.preprocess import IN_CHANNELS, transporter_normalize
@@ -75,7 +74,6 @@ class TwoStreamNet(EncoderNet):
         trunk = self.encoder_features(images)
         maps = None
         if texts is not None:
-            dense = F.normalize(per_sample(self.encoder.dense_embeddings(trunk[-1]), index), dim=1)
-            maps = torch.einsum("nehw,nke->nkhw", dense, texts)
+            maps = similarity_map(per_sample(self.encoder.dense_embeddings(trunk[-1]), index), texts)
         semantic = self.semantic(trunk, sentence, laterals, x.shape[-2:], index, maps)
         return self.fuse(per_sample(spatial, index), semantic)

@@ -19,11 +19,12 @@ import torch
 import torch.nn.functional as F
 
 from cliport.evaluation.instruction_following import lesson_task
+from cliport.models.encoders.base import TRUNK_STRIDES
 from cliport.models.encoders.clip_encoder import FrozenCLIP
-from cliport.models.encoders.dense_clip import dense_embeddings
+from cliport.models.encoders.dense_clip import similarity_map
 from cliport.pretrain.vocabulary import UNSEEN_COLORS, probe_color_caption
 
-STRIDE = 32  # the trunk's last level: the image is padded to a multiple of it
+STRIDE = TRUNK_STRIDES[-1]  # the trunk's last level: the image is padded to a multiple of it
 
 
 def caption_maps(encoder: FrozenCLIP, color: np.ndarray, captions: list[str], scale: float) -> torch.Tensor:
@@ -36,16 +37,16 @@ def caption_maps(encoder: FrozenCLIP, color: np.ndarray, captions: list[str], sc
     pad = (-size[1] % STRIDE, -size[0] % STRIDE)
     rgb = F.pad(rgb, (0, pad[0], 0, pad[1]))
     with torch.no_grad():
-        dense = dense_embeddings(encoder.model.visual, encoder.image_features(rgb)[-1])[0]  # (E, h', w')
-        text = F.normalize(encoder.sentence_features(captions), dim=1)  # (C, E)
-        maps = torch.einsum("ehw,ce->chw", F.normalize(dense, dim=0), text)[None]
+        dense = encoder.dense_embeddings(encoder.image_features(rgb)[-1])  # (1, E, h', w')
+        maps = similarity_map(dense, encoder.sentence_features(captions)[None])  # (1, C, h', w')
         maps = F.interpolate(maps, size=rgb.shape[-2:], mode="bilinear", align_corners=False)
     return F.interpolate(maps[..., : size[0], : size[1]], size=(h, w), mode="bilinear", align_corners=False)[0]
 
 
 def block_scores(maps: torch.Tensor, masks: dict[str, np.ndarray]) -> dict[str, torch.Tensor]:
-    """Caption maps (C, H, W) and each block's pixels (H, W) bool -> per block, its mean under each map (C,)."""
-    return {name: maps[:, torch.from_numpy(mask)].mean(dim=1) for name, mask in masks.items() if mask.any()}
+    """Caption maps (C, H, W) and each block's pixels (H, W) bool, none empty -> per block, its mean under each
+    map (C,)."""
+    return {name: maps[:, torch.from_numpy(mask)].mean(dim=1) for name, mask in masks.items()}
 
 
 def found(scores: dict[str, torch.Tensor]) -> dict[str, bool]:
@@ -74,12 +75,12 @@ def dense_retrieval(
         for seed in seeds:
             obs = env.reset(seed=int(seed))
             _, ids = env.oracle_heightmap()
-            masks = {name: ids == body for name, body in task.block_colors.items()}
             if obs["color"].shape[:2] != ids.shape:
                 raise ValueError(f"the colour map {obs['color'].shape[:2]} and the object ids {ids.shape} differ")
-            names = [name for name, mask in masks.items() if mask.any()]
-            captions = [probe_color_caption(name) for name in names]
-            scores = block_scores(caption_maps(encoder, obs["color"], captions, scale), {n: masks[n] for n in names})
+            masks = {name: ids == body for name, body in task.block_colors.items()}
+            masks = {name: mask for name, mask in masks.items() if mask.any()}  # a block the camera cannot see
+            captions = [probe_color_caption(name) for name in masks]
+            scores = block_scores(caption_maps(encoder, obs["color"], captions, scale), masks)
             for name, ok in found(scores).items():
                 records.append({"seed": int(seed), "color": name, "unseen": name in UNSEEN_COLORS, "found": ok})
     out: dict[str, Any] = {}

@@ -5,7 +5,7 @@ that pooling averages (MaskCLIP, Zhou et al. 2022): a ModifiedResNet's attention
 ``c_proj(v_proj(x_j + pos_j))`` over the positions j (per head), so those vectors, taken one position at a time,
 live in the space the text embedding lives in. :func:`dense_embeddings` computes them from the trunk's layer4 (the
 positional embedding resized to the map); for a ViT tower, the analogue is the final norm and projection applied
-to every patch token of the last level. :func:`similarity_map` is their cosine similarity with a sentence feature.
+to every patch token of the last level. :func:`similarity_map` is their cosine similarity with text embeddings.
 
 A two-stream net with ``similarity_maps`` reads :data:`SIMILARITY_MAPS` such maps as extra lateral channels: the
 instruction's, and those of its first two phrases (:func:`instruction_phrases`: "the pink block", "the red bowl"),
@@ -81,8 +81,9 @@ def dense_embeddings(visual: Any, layer4: torch.Tensor) -> torch.Tensor:
     return out.transpose(1, 2).reshape(n, -1, h, w)
 
 
-def similarity_map(dense: torch.Tensor, text: torch.Tensor) -> torch.Tensor:
-    """Dense embeddings (N, E, h, w) and text embeddings (N, E) -> their cosine similarity (N, 1, h, w)."""
-    if dense.shape[:2] != text.shape:
-        raise ValueError(f"dense embeddings {tuple(dense.shape)} and text {tuple(text.shape)} differ in N or E")
-    return torch.einsum("nehw,ne->nhw", F.normalize(dense, dim=1), F.normalize(text, dim=1)).unsqueeze(1)
+def similarity_map(dense: torch.Tensor, texts: torch.Tensor) -> torch.Tensor:
+    """Dense embeddings (N, E, h, w) and K text embeddings per sample (N, K, E) -> their cosine similarity
+    (N, K, h, w); a zero text embedding gives a zero map."""
+    if dense.shape[0] != texts.shape[0] or dense.shape[1] != texts.shape[2]:
+        raise ValueError(f"dense embeddings {tuple(dense.shape)} and texts {tuple(texts.shape)} differ in N or E")
+    return torch.einsum("nehw,nke->nkhw", F.normalize(dense, dim=1), F.normalize(texts, dim=2))

@@ -62,12 +62,12 @@ def test_similarity_map_is_cosine_per_position() -> None:
     dense = torch.zeros(2, 2, 1, 3)
     dense[0, :, 0] = torch.tensor([[3.0, 0.0, -1.0], [0.0, 3.0, 0.0]])  # along, across, against the text
     dense[1, :, 0] = torch.tensor([[1.0, 1.0, 0.0], [1.0, 0.0, 5.0]])
-    got = similarity_map(dense, text)
+    got = similarity_map(dense, text[:, None])
     assert got.shape == (2, 1, 1, 3)
     torch.testing.assert_close(got[0, 0, 0], torch.tensor([1.0, 0.0, -1.0]))
     torch.testing.assert_close(got[1, 0, 0], torch.tensor([2**-0.5, 0.0, 1.0]))
     with pytest.raises(ValueError, match="differ in N or E"):
-        similarity_map(dense, text[:, :1])
+        similarity_map(dense, text[:, None, :1])
 
 
 def test_rn50_weights_from_a_file_take_the_same_path(clip: FrozenCLIP, tmp_path: Path) -> None:
