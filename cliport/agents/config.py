@@ -96,6 +96,9 @@ class CLIPConfig(LanguageConfig):
             with the instruction's and its first two phrases' text embeddings (three maps at the trunk's last
             level) joins every spatial lateral of the semantic decoder, so that the nets can find a word where
             CLIP's shared image-text space places it, seen in the demos or not. Not the reference's net.
+        similarity_scale: with ``similarity_maps``, the trunk reads the nets' image resized by this factor (its
+            sides rounded to multiples of 32) for the maps alone: at stride 32 a block of the half-size CPU map
+            spans a fifth of a cell, and a finer map finds it more often (docs/results/pretraining.md).
     """
 
     weight_sources: ClassVar[tuple[str, ...]] = ("clip_weights",)
@@ -104,10 +107,16 @@ class CLIPConfig(LanguageConfig):
     semantic_encoder: str
     per_net_clip_stats: bool
     similarity_maps: bool
+    similarity_scale: float
 
     def validate(self) -> None:
-        """As :meth:`AgentConfig.validate`, and the encoder name must be an open_clip model we can use."""
+        """As :meth:`AgentConfig.validate`, the similarity scale positive, and the encoder name an open_clip
+        model we can use."""
         super().validate()
+        from cliport.errors import ConfigError
+
+        if not self.similarity_scale > 0:
+            raise ConfigError(f"similarity_scale must be positive, got {self.similarity_scale}")
         from cliport.models.encoders.clip_registry import check_model_name
 
         check_model_name(self.semantic_encoder)

@@ -24,8 +24,13 @@ class TwoStreamAgent(PickPlaceAgent):
                 raise TypeError(f"{type(config).__name__} names no CLIP: pass the encoder")
             encoder = load_clip(config.clip_weights, config.semantic_encoder)
         stats = isinstance(config, CLIPConfig) and config.per_net_clip_stats  # RN50-BERT has no CLIP
-        similarity = isinstance(config, CLIPConfig) and config.similarity_maps
-        net = {"per_net_clip_stats": stats, "scale_up_mid": config.scale_up_mid, "similarity_maps": similarity}
+        maps = isinstance(config, CLIPConfig) and config.similarity_maps
+        net = {
+            "per_net_clip_stats": stats,
+            "scale_up_mid": config.scale_up_mid,
+            "similarity_maps": maps,
+            "similarity_scale": config.similarity_scale if isinstance(config, CLIPConfig) else 1.0,
+        }
         pick = PickHead(TwoStreamNet(encoder, 1, config.width, **net), config.map_scale)
         place = PlaceHead(
             TwoStreamNet(encoder, PLACE_FEATURES, config.width, conv_fusion=True, **net),

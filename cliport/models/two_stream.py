@@ -10,15 +10,18 @@ two, and ``FusionAdd`` (pick) or ``FusionConv`` (key, query) over their outputs.
 from __future__ import annotations
 
 import torch
+import torch.nn.functional as F
 
 from cliport.models.distinct_images import per_sample
 from cliport.models.encoder_net import EncoderNet
-from cliport.models.encoders.base import FrozenEncoder
+from cliport.models.encoders.base import TRUNK_STRIDES, FrozenEncoder
 from cliport.models.encoders.dense_clip import SIMILARITY_MAPS, similarity_map
 from cliport.models.fusion import AddFusion, ConvFusion
 from cliport.models.lingunet import LingUNetLatDecoder
 from cliport.models.preprocess import IN_CHANNELS, transporter_normalize
 from cliport.models.resnet import ResNet45_10s
+
+STRIDE = TRUNK_STRIDES[-1]
 
 
 class TwoStreamNet(EncoderNet):
@@ -30,7 +33,8 @@ class TwoStreamNet(EncoderNet):
     [spatial, semantic] (its key and query nets). ``per_net_clip_stats``: see :class:`EncoderNet`;
     ``scale_up_mid``: see :class:`~cliport.models.lingunet.LingUNetLatDecoder`. ``similarity_maps``: the cosine of
     the frozen encoder's dense text-aligned embeddings (:mod:`~cliport.models.encoders.dense_clip`) with the
-    instruction's and its phrases' text embeddings joins the spatial laterals (not the reference's net).
+    instruction's and its phrases' text embeddings joins the spatial laterals (not the reference's net), the trunk
+    reading the image at ``similarity_scale`` times its size for them.
     A batch that repeats an image (a contrasting pair, a scene under several instructions) runs the spatial stream,
     the trunk and the decoder's image-only layers once per distinct image (:mod:`~cliport.models.distinct_images`).
     """
@@ -44,11 +48,13 @@ class TwoStreamNet(EncoderNet):
         per_net_clip_stats: bool = False,
         scale_up_mid: bool = False,
         similarity_maps: bool = False,
+        similarity_scale: float = 1.0,
     ) -> None:
         super().__init__(encoder, per_net_clip_stats)
         self.spatial = ResNet45_10s(IN_CHANNELS, out_ch, width)
         #: How many similarity maps join the laterals (:data:`~cliport.models.encoders.dense_clip.SIMILARITY_MAPS`).
         self.n_maps = SIMILARITY_MAPS if similarity_maps else 0
+        self.similarity_scale = similarity_scale
         self.semantic = LingUNetLatDecoder(
             encoder, out_ch, self.spatial.lateral_widths, width, scale_up_mid, extra_laterals=self.n_maps
         )
@@ -74,6 +80,17 @@ class TwoStreamNet(EncoderNet):
         trunk = self.encoder_features(images)
         maps = None
         if texts is not None:
-            maps = similarity_map(per_sample(self.encoder.dense_embeddings(trunk[-1]), index), texts)
+            maps = similarity_map(per_sample(self.dense_embeddings(images, trunk[-1]), index), texts)
         semantic = self.semantic(trunk, sentence, laterals, x.shape[-2:], index, maps)
         return self.fuse(per_sample(spatial, index), semantic)
+
+    def dense_embeddings(self, images: torch.Tensor, layer4: torch.Tensor) -> torch.Tensor:
+        """Raw images (M, 6, H, W) and their last trunk level (M, C, H/32, W/32) -> the frozen encoder's
+        text-aligned embeddings (M, E, h, w), from the trunk re-run on the images resized by ``similarity_scale``
+        (sides rounded to multiples of 32) where that is not 1."""
+        if self.similarity_scale != 1.0:
+            size = [max(STRIDE, round(side * self.similarity_scale / STRIDE) * STRIDE) for side in images.shape[-2:]]
+            rgb = F.interpolate(images[:, :3], size=size, mode="bilinear", align_corners=False)
+            stats = self.encoder_stats.as_dict() if self.encoder_stats is not None else None
+            layer4 = self.encoder.image_features(rgb, stats)[-1]
+        return self.encoder.dense_embeddings(layer4)

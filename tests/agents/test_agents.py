@@ -364,8 +364,23 @@ def test_similarity_maps_train_and_round_trip(tiny_config, tmp_path: Path) -> No
     agent.save_checkpoint(path)
     assert torch.load(path, weights_only=True)["config"]["similarity_maps"] is True
     loaded = load_agent(path)
-    assert loaded.config.similarity_maps
+    assert loaded.config.similarity_maps and loaded.config.similarity_scale == agent.config.similarity_scale
     _assert_same_act(agent, loaded, SIMILARITY_INSTRUCTION)
+
+
+def test_similarity_scale_reads_the_trunk_on_a_resized_image(tiny_config) -> None:
+    """At scale 2 the maps' grid doubles per side; at scale 1 they are the trunk's own last level's."""
+    torch.manual_seed(0)
+    agent = make_agent("two_stream", _similarity_config(tiny_config, similarity_maps=True, similarity_scale=1.0))
+    net = agent.pick.net
+    images = torch.rand(1, 6, 64, 96)
+    layer4 = net.encoder_features(images)[-1]
+    assert layer4.shape[-2:] == (2, 3)
+    torch.testing.assert_close(net.dense_embeddings(images, layer4), net.encoder.dense_embeddings(layer4))
+    net.similarity_scale = 2.0
+    assert net.dense_embeddings(images, layer4).shape == (1, net.encoder.sentence_dim, 4, 6)
+    with pytest.raises(ConfigError, match="similarity_scale must be positive, got 0"):
+        make_agent("two_stream", _similarity_config(tiny_config, similarity_maps=True, similarity_scale=0))
 
 
 def test_clip_only_refuses_similarity_maps(tiny_config) -> None:
