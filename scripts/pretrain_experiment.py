@@ -15,7 +15,8 @@ not know are passed to every quickstart run (``--minutes 5``, ``--episodes 40``,
 The arm ``published`` (``--arms random pretrained published``) runs CLIPort's RN50 with its published weights
 (``--clip-weights openai``): where they can be had (the Hugging Face cache, or network). The arm
 ``pretrained-maps`` is ``pretrained`` with ``--similarity-maps``: the encoder's dense image-text similarity to the
-instruction and its phrases joins the semantic decoder's laterals.
+instruction and its phrases joins the semantic decoder's laterals; ``pretrained-maps-only`` also takes the sentence
+out of the decoder's gates (``--no-language-gates``), so the instruction reaches the nets through the maps alone.
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ from cliport.utils.files import read_json, write_bytes, write_text
 
 TRAIN_TASK = "put-one-block-in-bowl-seen-colors"
 TEST_TASK = "put-one-block-in-bowl-unseen-colors"
-ARMS = ("random", "pretrained", "pretrained-maps", "published")
+ARMS = ("random", "pretrained", "pretrained-maps", "pretrained-maps-only", "published")
 QUICKSTART = os.path.join(os.path.dirname(os.path.abspath(__file__)), "quickstart.py")
 
 
@@ -52,7 +53,7 @@ def parse_args() -> tuple[Any, list[str]]:
     args, passthrough = parser.parse_known_args()
     if any(n < 1 for n in args.demos):
         raise ConfigError(f"--demos must all be at least 1, got {args.demos}")
-    if "pretrained" in args.arms or "pretrained-maps" in args.arms:
+    if any(arm.startswith("pretrained") for arm in args.arms):
         if not args.weights or not os.path.isfile(args.weights):
             raise ConfigError(f"the pretrained arm needs --weights FILE (from cliport-pretrain), got {args.weights}")
         if args.semantic_encoder is None:
@@ -78,8 +79,11 @@ def arm_flags(arm: str, args: Any) -> list[str]:
     if arm == "published":
         return ["--clip-weights", "openai"]
     weights = "random" if arm == "random" else os.path.abspath(args.weights)
-    maps = ["--similarity-maps"] if arm == "pretrained-maps" else []
-    return ["--clip-weights", weights, "--semantic-encoder", args.semantic_encoder, *maps]
+    maps = {
+        "pretrained-maps": ["--similarity-maps"],
+        "pretrained-maps-only": ["--similarity-maps", "--no-language-gates"],
+    }
+    return ["--clip-weights", weights, "--semantic-encoder", args.semantic_encoder, *maps.get(arm, [])]
 
 
 def cell_line(arm: str, n_demos: int, seed: int, results: dict[str, Any], seconds: float | None) -> dict[str, Any]:

@@ -35,6 +35,7 @@ import torch
 
 from cliport import tasks
 from cliport.agents import agent_class, agent_names, load_agent
+from cliport.agents.registry import config_classes
 from cliport.cli.common import OneLineParser, run_cli
 from cliport.data.generate import DemoConfig, generate
 from cliport.errors import ConfigError, RunDirError
@@ -52,10 +53,16 @@ from cliport.train.config import TrainConfig, load_run_config
 from cliport.train.probe import step_seconds
 from cliport.train.recipes import recipe_names
 from cliport.train.trainer import train
-from cliport.utils.config import device_defaults
+from cliport.utils.config import add_flags, device_defaults, given_flags
 from cliport.utils.files import read_json, write_json
 from cliport.utils.run_dir import RunDir
 from cliport.utils.tensorboard import log_result, summary_writer
+
+#: Agent config fields with flags of the quickstart's own above (defaults from configs/quickstart.toml); the rest
+#: get flags from their config fields, defaults from configs/<agent>.toml.
+LESSON_AGENT_FLAGS = (
+    "width", "map_scale", "lr", "n_rotations", "clip_weights", "semantic_encoder", "center_sentences", "scale_up_mid"
+)  # fmt: skip
 
 
 def parse_args(device: str, argv: list[str] | None = None) -> Any:
@@ -171,19 +178,19 @@ def parse_args(device: str, argv: list[str] | None = None) -> Any:
         "(language agents; not the reference's rule, the same net at width 1)",
     )
     parser.add_argument(
-        "--similarity-maps",
-        action=argparse.BooleanOptionalAction,
-        default=setting.get("similarity_maps", False),
-        help="two_stream: CLIP's dense image-text similarity to the instruction and its phrases joins the "
-        "semantic decoder's laterals (not the reference's net; see docs/pretraining.md)",
-    )
-    parser.add_argument(
         "--swap-scenes",
         type=int,
         default=setting.get("swap_scenes", 0),
         help="test scenes on which instruction following is measured (each gives one swap per other block)",
     )
+    agent_dests = add_flags(
+        parser.add_argument_group("other agent settings (configs/<agent>.toml)"),
+        config_classes(),
+        "agent_config",
+        skip=LESSON_AGENT_FLAGS,
+    )
     args = parser.parse_args(argv)
+    args.agent_settings = given_flags(args, agent_dests).get("agent_config", {})
     for name in ("demos", "steps", "batch_size", "episodes"):
         if getattr(args, name) < 1:
             raise ConfigError(f"--{name.replace('_', '-')} must be at least 1, got {getattr(args, name)}")
@@ -242,8 +249,7 @@ def train_config(
     if agent_class(args.agent).uses_language:
         agent_config["center_sentences"] = args.center_sentences
         agent_config["scale_up_mid"] = args.scale_up_mid
-    if args.similarity_maps:
-        agent_config["similarity_maps"] = True
+    agent_config.update(args.agent_settings)
     config = TrainConfig.build(
         {
             "agent": args.agent,

@@ -318,6 +318,11 @@ class PickPlaceAgent(nn.Module):
         """``{config field: source}`` of every pretrained part (e.g. ``{"clip_weights": "openai"}``)."""
         return {field: getattr(self.config, field) for field in self.weight_sources}
 
+    def similarity_heatmaps(self, obs: dict[str, np.ndarray], instruction: str) -> dict[str, np.ndarray]:
+        """The text-image similarity maps the pick net reads for one observation, ``{text: (H, W)}``; empty for
+        agents without them (only two_stream with ``similarity_maps`` has them)."""
+        return {}
+
     def describe(self) -> dict[str, Any]:
         """What every result of this agent records about it: name, pretrained weight sources and rotation count."""
         return {

@@ -99,6 +99,9 @@ class CLIPConfig(LanguageConfig):
         similarity_scale: with ``similarity_maps``, the trunk reads the nets' image resized by this factor (its
             sides rounded to multiples of 32) for the maps alone: at stride 32 a block of the half-size CPU map
             spans a fifth of a cell, and a finer map finds it more often (docs/results/pretraining.md).
+        language_gates: the semantic decoder's layers are gated by the sentence feature, as CLIPort's are; false
+            (needs ``similarity_maps``): they read a zero sentence feature, so that the instruction reaches the
+            nets through the similarity maps alone, where a word unseen in the demos still finds its colour.
     """
 
     weight_sources: ClassVar[tuple[str, ...]] = ("clip_weights",)
@@ -108,6 +111,7 @@ class CLIPConfig(LanguageConfig):
     per_net_clip_stats: bool
     similarity_maps: bool
     similarity_scale: float
+    language_gates: bool
 
     def validate(self) -> None:
         """As :meth:`AgentConfig.validate`, the similarity scale positive, and the encoder name an open_clip
@@ -117,6 +121,8 @@ class CLIPConfig(LanguageConfig):
 
         if not self.similarity_scale > 0:
             raise ConfigError(f"similarity_scale must be positive, got {self.similarity_scale}")
+        if not self.language_gates and not self.similarity_maps:
+            raise ConfigError("language_gates = false needs similarity_maps: without both the nets read no instruction")
         from cliport.models.encoders.clip_registry import check_model_name
 
         check_model_name(self.semantic_encoder)

@@ -72,7 +72,8 @@ class Prediction:
 
     pick/place: ``xyz`` (metres), ``quat`` (xyzw; pick yaw 0, place yaw = relative yaw), ``pixel`` (u, v)
     in the fused map, and for place ``rotation_bin``. ``obs``: the fused ``color`` (H, W, 3) uint8 and
-    ``height`` (H, W) float32 the agent saw; ``act``: the agent's raw ``act()`` result (heatmaps (H, W)).
+    ``height`` (H, W) float32 the agent saw; ``act``: the agent's raw ``act()`` result (heatmaps (H, W));
+    ``similarity``: its ``similarity_heatmaps`` (``{text: (H, W)}``, empty for agents without them).
     """
 
     pick: dict[str, Any]
@@ -82,6 +83,7 @@ class Prediction:
     obs: dict[str, np.ndarray] = field(repr=False)
     act: dict[str, Any] = field(repr=False)
     notes: list[str] = field(default_factory=list)
+    similarity: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
 
     def to_json(self) -> dict[str, Any]:
         """The JSON object ``cliport-predict`` prints."""
@@ -94,10 +96,10 @@ class Prediction:
         }
 
     def panel(self) -> np.ndarray:
-        """Fused map | pick heatmap | place heatmap as one (H', W', 3) uint8 picture."""
+        """Fused map | pick heatmap | place heatmap (| similarity maps) as one (H', W', 3) uint8 picture."""
         from cliport.evaluation.visualize import action_panel
 
-        return action_panel(self.obs, self.act, self.instruction)
+        return action_panel(self.obs, self.act, self.instruction, similarity=self.similarity)
 
 
 class Predictor:
@@ -179,4 +181,5 @@ class Predictor:
             obs=obs,
             act=act,
             notes=notes,
+            similarity=self.agent.similarity_heatmaps(obs, instruction),
         )

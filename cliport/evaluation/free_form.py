@@ -41,7 +41,8 @@ def run_instruction(
 
     def on_act(obs: dict[str, Any], result: dict[str, Any], instruction: str | None) -> None:
         path = os.path.join(out_dir, f"{stem}-step{len(panels) + 1}-heatmaps.png")
-        save_png(path, action_panel(obs, result, instruction))
+        similarity = agent.similarity_heatmaps(obs, instruction) if instruction else {}
+        save_png(path, action_panel(obs, result, instruction, similarity=similarity))
         panels.append(path)
 
     with Environment(EnvConfig.defaults(camera_scale=camera_scale), task=tasks.make(task_name, mode)) as env:

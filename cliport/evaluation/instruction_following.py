@@ -116,6 +116,9 @@ def two_instructions_figure(
         block = next(name for name in task.block_colors if name != task.goal_block)
         bowl = next(name for name in task.bowl_colors if name != task.goal_bowl)
         other = task.instruction_for(block, bowl)
-    panels = [action_panel(obs, agent.act(obs, lang), lang) for lang in (own, other)]
+    panels = [
+        action_panel(obs, agent.act(obs, lang), lang, similarity=agent.similarity_heatmaps(obs, lang))
+        for lang in (own, other)
+    ]
     save_png(path, np.concatenate(panels, axis=0))
     return [own, other]

@@ -26,16 +26,24 @@ def fill_empty_cells(color: np.ndarray) -> np.ndarray:
     return cv2.inpaint(np.ascontiguousarray(color), empty.astype(np.uint8), 2, cv2.INPAINT_TELEA)
 
 
-def action_panel(obs: dict, act: dict, instruction: str | None, scale: int = 2) -> np.ndarray:
+def action_panel(
+    obs: dict, act: dict, instruction: str | None, scale: int = 2, similarity: dict[str, np.ndarray] | None = None
+) -> np.ndarray:
     """Observation | pick heatmap with the pick pixel | place heatmap with the place pixel and its yaw,
-    side by side (each 320 x 160 scaled by ``scale``), with the instruction written above. Empty cells of
-    the fused map are filled for display (:func:`fill_empty_cells`)."""
+    side by side (each 320 x 160 scaled by ``scale``), with the instruction written above; then one panel per
+    ``similarity`` map (``{text: (H, W)}``, an agent's ``similarity_heatmaps``), spread from its minimum to its
+    maximum and labelled with its text. Empty cells of the fused map are filled for display
+    (:func:`fill_empty_cells`)."""
     color = fill_empty_cells(obs["color"])
     pick = heatmap_overlay(color, act["pick_heatmap"])
     place = heatmap_overlay(color, act["place_heatmap"])
-    panels = [
-        cv2.resize(img, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST) for img in (color, pick, place)
-    ]
+    shown = [color, pick, place]
+    for values in (similarity or {}).values():
+        spread = (values - values.min()) / max(float(values.max() - values.min()), 1e-12)
+        shown.append(heatmap_overlay(color, spread))
+    panels = [cv2.resize(img, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST) for img in shown]
+    for panel, text in zip(panels[3:], similarity or {}, strict=True):
+        cv2.putText(panel, f"~ {text}"[:40], (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 255), 1, cv2.LINE_AA)
     pu, pv = act["pick_pix"]
     qu, qv = act["place_pix"]
     cv2.circle(panels[1], (int(pv * scale), int(pu * scale)), 6, (255, 255, 255), 2)

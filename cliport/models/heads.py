@@ -51,6 +51,15 @@ def rotation_bin(relative_yaw: torch.Tensor, n_rotations: int) -> torch.Tensor:
     return torch.round(-relative_yaw.double() / step).long() % n_rotations
 
 
+def pad_square(x: torch.Tensor) -> tuple[torch.Tensor, tuple[int, int]]:
+    """(B, C, h, w) -> zero-padded to (B, C, s, s), s = max(h, w), centred, and the (top, left) of the
+    original inside it."""
+    h, w = x.shape[-2:]
+    side = max(h, w)
+    top, left = (side - h) // 2, (side - w) // 2
+    return F.pad(x, (left, side - w - left, top, side - h - top)), (top, left)
+
+
 class PickHead(nn.Module):
     """Pads the input to a square, runs a 1-channel net and crops back: logits over all pick pixels.
 
@@ -74,10 +83,9 @@ class PickHead(nn.Module):
         size = x.shape[-2:]
         x = shrink_map(x, self.map_scale)
         h, w = x.shape[-2:]
-        side = max(h, w)
-        top, left = (side - h) // 2, (side - w) // 2
-        pivot = (side // 2, side // 2)
-        padded = rotation.warp(F.pad(x, (left, side - w - left, top, side - h - top)), 0.0, pivot)
+        square, (top, left) = pad_square(x)
+        pivot = (square.shape[-1] // 2, square.shape[-1] // 2)
+        padded = rotation.warp(square, 0.0, pivot)
         logits = self.net(padded.contiguous(memory_format=self.input_memory_format), sentence)
         logits = rotation.warp(logits[:, :1], 0.0, pivot)
         return grow_logits(logits[:, :, top : top + h, left : left + w], size)[:, 0]

@@ -34,7 +34,8 @@ class TwoStreamNet(EncoderNet):
     ``scale_up_mid``: see :class:`~cliport.models.lingunet.LingUNetLatDecoder`. ``similarity_maps``: the cosine of
     the frozen encoder's dense text-aligned embeddings (:mod:`~cliport.models.encoders.dense_clip`) with the
     instruction's and its phrases' text embeddings joins the spatial laterals (not the reference's net), the trunk
-    reading the image at ``similarity_scale`` times its size for them.
+    reading the image at ``similarity_scale`` times its size for them. ``language_gates`` False (with the maps):
+    the decoder's gates read a zero sentence feature, so the instruction enters through the maps alone.
     A batch that repeats an image (a contrasting pair, a scene under several instructions) runs the spatial stream,
     the trunk and the decoder's image-only layers once per distinct image (:mod:`~cliport.models.distinct_images`).
     """
@@ -49,12 +50,16 @@ class TwoStreamNet(EncoderNet):
         scale_up_mid: bool = False,
         similarity_maps: bool = False,
         similarity_scale: float = 1.0,
+        language_gates: bool = True,
     ) -> None:
         super().__init__(encoder, per_net_clip_stats)
         self.spatial = ResNet45_10s(IN_CHANNELS, out_ch, width)
         #: How many similarity maps join the laterals (:data:`~cliport.models.encoders.dense_clip.SIMILARITY_MAPS`).
         self.n_maps = SIMILARITY_MAPS if similarity_maps else 0
         self.similarity_scale = similarity_scale
+        if not language_gates and not similarity_maps:
+            raise ValueError("a net without language gates reads the instruction through similarity maps only")
+        self.language_gates = language_gates
         self.semantic = LingUNetLatDecoder(
             encoder, out_ch, self.spatial.lateral_widths, width, scale_up_mid, extra_laterals=self.n_maps
         )
@@ -74,6 +79,8 @@ class TwoStreamNet(EncoderNet):
             if sentence.shape[1] != (1 + self.n_maps) * dim:
                 raise ValueError(f"a net with similarity maps reads {(1 + self.n_maps) * dim} sentence channels")
             sentence, texts = sentence[:, :dim], sentence[:, dim:].unflatten(1, (self.n_maps, dim))
+        if not self.language_gates:
+            sentence = torch.zeros_like(sentence)
         distinct = self.distinct_inputs(x)
         images, index = (x, None) if distinct is None else (distinct.images, distinct.index)
         spatial, laterals = self.spatial(transporter_normalize(images))

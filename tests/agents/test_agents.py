@@ -383,6 +383,39 @@ def test_similarity_scale_reads_the_trunk_on_a_resized_image(tiny_config) -> Non
         make_agent("two_stream", _similarity_config(tiny_config, similarity_maps=True, similarity_scale=0))
 
 
+def test_without_language_gates_the_instruction_enters_through_the_maps_alone(tiny_config) -> None:
+    torch.manual_seed(0)
+    agent = make_agent("two_stream", _similarity_config(tiny_config, similarity_maps=True, language_gates=False))
+    inputs = agent.training_inputs(_batch([(RED_BLOCK, GREEN_BOWL, 3, SIMILARITY_INSTRUCTION)]))
+    raw = raw_input(inputs["color"], inputs["height"])
+    dim = agent.encoder.sentence_dim
+    sentence = agent.sentence_features([SIMILARITY_INSTRUCTION])
+    other = agent.sentence_features(["put the blue block in the yellow bowl"])
+    other_gate = torch.cat([other[:, :dim], sentence[:, dim:]], dim=1)
+    other_maps = torch.cat([sentence[:, :dim], other[:, dim:]], dim=1)
+    with torch.no_grad():
+        own = agent.pick.net(raw, sentence)
+        torch.testing.assert_close(agent.pick.net(raw, other_gate), own)  # the gates read no sentence
+        assert not torch.allclose(agent.pick.net(raw, other_maps), own)  # the maps do
+    with pytest.raises(ConfigError, match="language_gates = false needs similarity_maps"):
+        make_agent("two_stream", _similarity_config(tiny_config, language_gates=False))
+
+
+def test_similarity_heatmaps_show_what_the_pick_net_reads(tiny_config) -> None:
+    """One map per text at the observation's size; agents without maps have none."""
+    torch.manual_seed(0)
+    agent = make_agent("two_stream", _similarity_config(tiny_config, similarity_maps=True, map_scale=0.5))
+    rng = np.random.default_rng(0)
+    obs = {"color": rng.integers(0, 255, (320, 160, 3), dtype=np.uint8), "height": np.zeros((320, 160), np.float32)}
+    maps = agent.similarity_heatmaps(obs, SIMILARITY_INSTRUCTION)
+    assert list(maps) == [SIMILARITY_INSTRUCTION, "the red block", "the green bowl"]
+    for values in maps.values():
+        assert values.shape == (320, 160) and values.dtype == np.float32
+        assert np.all(np.abs(values) <= 1 + 1e-5) and values.std() > 0
+    assert not np.allclose(maps["the red block"], maps["the green bowl"])
+    assert make_agent("two_stream", _similarity_config(tiny_config)).similarity_heatmaps(obs, "x") == {}
+
+
 def test_clip_only_refuses_similarity_maps(tiny_config) -> None:
     with pytest.raises(ConfigError, match="similarity_maps is an option of the two_stream agent"):
         make_agent("clip_only", tiny_config("clip_only", semantic_encoder="cliport-RN-tiny", similarity_maps=True))

@@ -25,6 +25,9 @@ class ColourPicker:
         self.ignore_language = ignore_language
         self.first_instruction: str | None = None
 
+    def similarity_heatmaps(self, obs, instruction):
+        return {}
+
     def act(self, obs, instruction):
         if self.ignore_language:
             instruction = self.first_instruction
