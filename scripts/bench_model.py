@@ -36,7 +36,7 @@ from torch.profiler import ProfilerActivity, profile
 from torch.utils.flop_counter import FlopCounterMode
 
 from cliport.agents import PickPlaceAgent, agent_class, agent_names, make_agent
-from cliport.train.probe import step_seconds
+from cliport.train.step_timing import step_seconds
 from cliport.utils.machine import measurement_environment
 
 H, W = 320, 160

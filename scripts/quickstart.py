@@ -50,7 +50,7 @@ from cliport.evaluation.instruction_following import (
 )
 from cliport.pretrain.transfer import colour_report
 from cliport.train.config import TrainConfig, load_run_config
-from cliport.train.probe import step_seconds
+from cliport.train.step_timing import step_seconds
 from cliport.train.recipes import recipe_names
 from cliport.train.trainer import train
 from cliport.utils.config import add_flags, device_defaults, given_flags
