@@ -34,7 +34,7 @@ from typing import Any
 import torch
 
 from cliport import tasks
-from cliport.agents import agent_class, agent_names, load_agent
+from cliport.agents import agent_class, agent_names, load_agent, make_config
 from cliport.agents.registry import config_classes
 from cliport.cli.common import OneLineParser, run_cli
 from cliport.data.generate import DemoConfig, generate
@@ -49,9 +49,9 @@ from cliport.evaluation.instruction_following import (
     two_instructions_figure,
 )
 from cliport.pretrain.transfer import colour_report
-from cliport.train.config import TrainConfig, load_run_config
-from cliport.train.step_timing import step_seconds
+from cliport.train.config import TrainConfig, default_place_rotations, load_run_config
 from cliport.train.recipes import recipe_names
+from cliport.train.step_timing import step_seconds
 from cliport.train.trainer import train
 from cliport.utils.config import add_flags, device_defaults, given_flags
 from cliport.utils.files import read_json, write_json
@@ -232,8 +232,9 @@ def resolve_clip_weights(args: Any) -> str | None:
 
 
 def place_rotations(args: Any) -> int:
-    """--n-rotations, or 1 where the task's place yaw says nothing (round bowls), else the papers' 36."""
-    return int(args.n_rotations or (36 if tasks.place_yaw_informative(args.task) else 1))
+    """--n-rotations, else :func:`~cliport.train.config.default_place_rotations`: 1 where the task's place yaw
+    says nothing (round bowls), else the agent's (the papers' 36)."""
+    return int(args.n_rotations or default_place_rotations(args.task) or make_config(args.agent).n_rotations)
 
 
 def train_config(

@@ -49,6 +49,7 @@ def main(argv: list[str] | None = None) -> None:
     from cliport.agents import load_agent
     from cliport.data.seeds import episode_seeds
     from cliport.deploy.hub import hub_eval_dir
+    from cliport.env.config import check_renderer
     from cliport.env.environment import RENDERER_KINDS, EnvConfig
     from cliport.evaluation.engine import EvalEngine, resolve_workers
     from cliport.evaluation.evaluate import EvalConfig, evaluate
@@ -79,8 +80,7 @@ def main(argv: list[str] | None = None) -> None:
             file=sys.stderr,
         )
     renderer = config.renderer or run_config.env.renderer
-    if renderer not in ("auto", "egl", "cpu"):
-        raise ConfigError(f"--renderer must be auto, egl or cpu, got {renderer!r}")
+    check_renderer(renderer, "--renderer")
     validated_with = read_json(run.val).get("renderer") if os.path.exists(run.val) else None
     names = tasks.resolve(args.task or run_config.task)
     out = args.out or (hub_eval_dir(source) if source.startswith(HF_PREFIX) else run.eval_dir)

@@ -77,20 +77,21 @@ def config_from_args(args: argparse.Namespace, dests: list[str]) -> TrainConfig:
 
 
 def _rotation_default(given: dict[str, Any]) -> dict[str, Any]:
-    """One place rotation by default for tasks whose expert's place yaw carries no information (noted
-    on stderr); given --n-rotations always wins."""
+    """The place rotations of :func:`~cliport.train.config.default_place_rotations` (noted on stderr where it
+    is one); given --n-rotations always wins."""
     if "n_rotations" in given.get("agent_config", {}):
         return given
-    from cliport import tasks
+    from cliport.train.config import default_place_rotations
 
-    if tasks.place_yaw_informative(given["task"]):
+    n_rotations = default_place_rotations(given["task"])
+    if n_rotations is None:
         return given
     print(
         f"note: the place yaw of {given['task']} carries no information (nothing checks it), so the agent "
         "trains with one place rotation (one query crop per sample); pass --n-rotations to choose another count",
         file=sys.stderr,
     )
-    return {**given, "agent_config": {**given.get("agent_config", {}), "n_rotations": 1}}
+    return {**given, "agent_config": {**given.get("agent_config", {}), "n_rotations": n_rotations}}
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from cliport.env.egl import egl_works
+from cliport.errors import ConfigError
 from cliport.utils.config import defaults as config_defaults
 
 
@@ -45,6 +46,14 @@ def gpu_present() -> bool:
 
 #: What demos, evaluations and runs record as the renderer: PyBullet's EGL plugin or TinyRenderer.
 RENDERER_KINDS = ("egl", "tiny")
+#: The renderer every command can be asked for: auto (EGL where a GPU is, else TinyRenderer), egl or cpu.
+RENDERERS = ("auto", "egl", "cpu")
+
+
+def check_renderer(choice: str, flag: str = "renderer") -> None:
+    """ConfigError naming ``flag`` unless ``choice`` is one of :data:`RENDERERS`."""
+    if choice not in RENDERERS:
+        raise ConfigError(f"{flag} must be auto, egl or cpu, got {choice!r}")
 
 
 def expected_renderer(choice: str) -> str:
@@ -53,8 +62,7 @@ def expected_renderer(choice: str) -> str:
     present and PyBullet's eglRenderer plugin works (:func:`cliport.env.egl.egl_works`). (An Environment
     falls back to tiny if the plugin still fails to load; its :attr:`Environment.renderer_kind` is what it
     really uses.)"""
-    if choice not in ("auto", "egl", "cpu"):
-        raise ValueError(f"renderer must be 'auto', 'egl' or 'cpu', got {choice!r}")
+    check_renderer(choice)
     if choice == "cpu" or (choice == "auto" and not gpu_present()):
         return "tiny"
     if choice == "egl":

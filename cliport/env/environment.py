@@ -85,8 +85,7 @@ class Environment:
 
     # ------------------------------------------------------------------ set-up
     def _choose_renderer(self, choice: str) -> tuple[int, str]:
-        if choice not in ("auto", "egl", "cpu"):
-            raise ValueError(f"renderer must be 'auto', 'egl' or 'cpu', got {choice!r}")
+        env_config.check_renderer(choice)
         if choice == "cpu":
             return p.ER_TINY_RENDERER, "cpu (TinyRenderer)"
         if choice == "auto" and not env_config.gpu_present():

@@ -7,6 +7,7 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
+from cliport.env.config import check_renderer
 from cliport.errors import ConfigError
 from cliport.utils.config import defaults_file, from_dict, read_defaults
 
@@ -81,8 +82,7 @@ class PretrainConfig:
             raise ConfigError(f"camera_scale must be positive, got {self.camera_scale}")
         if self.lr <= 0 or self.weight_decay < 0:
             raise ConfigError(f"lr must be > 0 and weight_decay >= 0, got {self.lr} and {self.weight_decay}")
-        if self.renderer not in ("auto", "egl", "cpu"):
-            raise ConfigError(f"renderer must be auto, egl or cpu, got {self.renderer!r}")
+        check_renderer(self.renderer)
         check_model_name(self.semantic_encoder)
 
 

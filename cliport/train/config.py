@@ -11,7 +11,7 @@ from typing import Any
 
 from cliport.agents.config import AgentConfig
 from cliport.agents.registry import resolve_agent
-from cliport.env.config import EnvConfig
+from cliport.env.config import EnvConfig, check_renderer
 from cliport.errors import ConfigError, RunDirError
 from cliport.train.recipes import Recipe, get_recipe, recipe_names
 from cliport.utils.config import defaults_file, from_dict, merge, read_defaults, to_dict
@@ -170,8 +170,7 @@ class TrainConfig:
             raise ConfigError("pair_contrasts pairs the instructions of a scene: it needs every_instruction")
         if self.env.camera_scale <= 0:
             raise ConfigError(f"camera_scale must be > 0, got {self.env.camera_scale}")
-        if self.env.renderer not in ("auto", "egl", "cpu"):
-            raise ConfigError(f"renderer must be auto, egl or cpu, got {self.env.renderer!r}")
+        check_renderer(self.env.renderer)
         self.agent_config.validate()
         if self.recipe not in recipe_names():
             raise ConfigError(f"unknown recipe {self.recipe!r}; choose one of {', '.join(recipe_names())}")
@@ -183,6 +182,16 @@ class TrainConfig:
     def to_dict(self) -> dict[str, Any]:
         """The config as nested plain dicts (what ``RUN/config.json`` holds)."""
         return to_dict(self)
+
+
+def default_place_rotations(task: str, papers: bool = False) -> int | None:
+    """The place rotations a run of ``task`` trains with when none is given, decided here for every command: 1
+    where the task's expert place yaw carries no information (round bowls: nothing checks it, so one query crop
+    per sample does), else None, the agent config's count (the papers' 36). ``papers``: always None, the papers'
+    protocol whatever the task (``cliport-reproduce`` keeps it to reproduce their tables)."""
+    from cliport import tasks
+
+    return None if papers or tasks.place_yaw_informative(task) else 1
 
 
 def load_run_config(run_dir: str) -> TrainConfig:
