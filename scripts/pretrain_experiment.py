@@ -17,6 +17,8 @@ The arm ``published`` (``--arms random pretrained published``) runs CLIPort's RN
 ``pretrained-maps`` is ``pretrained`` with ``--similarity-maps``: the encoder's dense image-text similarity to the
 instruction and its phrases joins the semantic decoder's laterals; ``pretrained-maps-only`` also takes the sentence
 out of the decoder's gates (``--no-language-gates``), so the instruction reaches the nets through the maps alone.
+``pretrained-bank`` and ``pretrained-bank-only`` are those two with ``--similarity-bank``: each map the probability
+of its text against the training instructions' phrases.
 """
 
 from __future__ import annotations
@@ -36,7 +38,15 @@ from cliport.utils.files import read_json, write_bytes, write_text
 
 TRAIN_TASK = "put-one-block-in-bowl-seen-colors"
 TEST_TASK = "put-one-block-in-bowl-unseen-colors"
-ARMS = ("random", "pretrained", "pretrained-maps", "pretrained-maps-only", "published")
+ARMS = (
+    "random",
+    "pretrained",
+    "pretrained-maps",
+    "pretrained-maps-only",
+    "pretrained-bank",
+    "pretrained-bank-only",
+    "published",
+)
 QUICKSTART = os.path.join(os.path.dirname(os.path.abspath(__file__)), "quickstart.py")
 
 

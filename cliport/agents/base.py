@@ -27,6 +27,7 @@ from cliport.errors import CheckpointError, ConfigError
 from cliport.models.cuda_graphs import GraphedForward, GraphMemory
 from cliport.models.encoder_net import EncoderNet
 from cliport.models.encoders.base import FrozenEncoder
+from cliport.models.encoders.dense_clip import PhraseBank
 from cliport.models.heads import PickHead, PlaceHead
 from cliport.models.preprocess import raw_input
 from cliport.utils.files import save_torch
@@ -45,6 +46,8 @@ class PickPlaceAgent(nn.Module):
     #: Buffers of agents with ``center_sentences`` (see :meth:`fit_sentence_centering`).
     sentence_mean: torch.Tensor
     sentence_scale: torch.Tensor
+    #: The texts similarity maps compete with (two_stream with ``similarity_bank``), fitted when training starts.
+    phrase_bank: PhraseBank | None
     #: Whether the instruction changes what the agent does.
     uses_language: ClassVar[bool] = False
     #: Config fields naming pretrained weights (recorded in checkpoints, never saved in them).
@@ -64,6 +67,7 @@ class PickPlaceAgent(nn.Module):
         self.pick = pick
         self.place = place
         self.encoder = encoder
+        self.phrase_bank = None
         self.centers_sentences = bool(getattr(config, "center_sentences", False))
         if self.centers_sentences:
             if encoder is None:
@@ -139,6 +143,11 @@ class PickPlaceAgent(nn.Module):
         features = self.encoder.sentence_features(texts)
         if self.centers_sentences:
             features = sentences.centred(features, self.sentence_mean, self.sentence_scale, self._sentences_fitted)
+        if self.phrase_bank is not None and not self.phrase_bank.fitted:
+            raise RuntimeError(
+                "this agent's similarity maps compete with a phrase bank that was never fitted: call "
+                "agent.phrase_bank.fit(agent.encoder, the training instructions) first (cliport-train does)"
+            )
         if getattr(self.config, "similarity_maps", False):
             features = torch.cat([features, sentences.similarity_texts(self.encoder, texts)], dim=1)
         return features

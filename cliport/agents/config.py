@@ -99,6 +99,11 @@ class CLIPConfig(LanguageConfig):
         similarity_scale: with ``similarity_maps``, the trunk reads the nets' image resized by this factor (its
             sides rounded to multiples of 32) for the maps alone: at stride 32 a block of the half-size CPU map
             spans a fifth of a cell, and a finer map finds it more often (docs/results/pretraining.md).
+        similarity_bank: with ``similarity_maps``, each map is at every position the probability (CLIP's
+            softmax at its own temperature) that the text, rather than any of the training instructions and their
+            phrases (a bank fitted when training starts, saved with the weights), describes it best, instead of the
+            raw cosine: "the red block" then lights the red block, not every block alike
+            (docs/results/pretraining.md).
         language_gates: the semantic decoder's layers are gated by the sentence feature, as CLIPort's are; false
             (needs ``similarity_maps``): they read a zero sentence feature, so that the instruction reaches the
             nets through the similarity maps alone, where a word unseen in the demos still finds its colour.
@@ -111,6 +116,7 @@ class CLIPConfig(LanguageConfig):
     per_net_clip_stats: bool
     similarity_maps: bool
     similarity_scale: float
+    similarity_bank: bool
     language_gates: bool
 
     def validate(self) -> None:
@@ -121,6 +127,8 @@ class CLIPConfig(LanguageConfig):
 
         if not self.similarity_scale > 0:
             raise ConfigError(f"similarity_scale must be positive, got {self.similarity_scale}")
+        if self.similarity_bank and not self.similarity_maps:
+            raise ConfigError("similarity_bank = true needs similarity_maps, the maps it makes probabilities of")
         if not self.language_gates and not self.similarity_maps:
             raise ConfigError("language_gates = false needs similarity_maps: without both the nets read no instruction")
         from cliport.models.encoders.clip_registry import check_model_name

@@ -14,7 +14,7 @@ from cliport.agents.config import CLIPConfig, LanguageConfig
 from cliport.agents.registry import register_agent
 from cliport.models.encoders.base import FrozenEncoder
 from cliport.models.encoders.clip_encoder import load_clip
-from cliport.models.encoders.dense_clip import instruction_phrases, similarity_map
+from cliport.models.encoders.dense_clip import PhraseBank, instruction_phrases
 from cliport.models.heads import PLACE_FEATURES, PickHead, PlaceHead, grow_logits, pad_square, shrink_map
 from cliport.models.two_stream import TwoStreamNet
 
@@ -33,12 +33,14 @@ class TwoStreamAgent(PickPlaceAgent):
             encoder = load_clip(config.clip_weights, config.semantic_encoder)
         stats = isinstance(config, CLIPConfig) and config.per_net_clip_stats  # RN50-BERT has no CLIP
         maps = isinstance(config, CLIPConfig) and config.similarity_maps
+        bank = PhraseBank(encoder.sentence_dim) if isinstance(config, CLIPConfig) and config.similarity_bank else None
         net: dict[str, Any] = {
             "per_net_clip_stats": stats,
             "scale_up_mid": config.scale_up_mid,
             "similarity_maps": maps,
             "similarity_scale": config.similarity_scale if isinstance(config, CLIPConfig) else 1.0,
             "language_gates": config.language_gates if isinstance(config, CLIPConfig) else True,
+            "bank": bank,
         }
         pick = PickHead(TwoStreamNet(encoder, 1, config.width, **net), config.map_scale)
         place = PlaceHead(
@@ -49,10 +51,12 @@ class TwoStreamAgent(PickPlaceAgent):
             config.map_scale,
         )
         super().__init__(config, pick, place, encoder)
+        self.phrase_bank = bank
 
     @torch.no_grad()
     def similarity_heatmaps(self, obs: dict[str, np.ndarray], instruction: str) -> dict[str, np.ndarray]:
-        """With ``similarity_maps``: the cosine maps of the instruction and of its phrases that the pick net reads
+        """With ``similarity_maps``: the maps of the instruction and of its phrases that the pick net reads (cosines,
+        or probabilities against its phrase bank)
         for ``obs`` (its map shrunk by ``map_scale`` and padded to a square as the pick head does), cropped and
         grown back to the observation's (H, W); ``{}`` without them."""
         net = self.pick.net
@@ -64,7 +68,7 @@ class TwoStreamAgent(PickPlaceAgent):
         square, (top, left) = pad_square(small)
         texts = [instruction, *instruction_phrases(instruction)]
         embeddings = F.normalize(net.encoder.sentence_features(texts), dim=1)[None]
-        maps = similarity_map(net.dense_embeddings(square, net.encoder_features(square)[-1]), embeddings)
+        maps = net.similarity(net.dense_embeddings(square, net.encoder_features(square)[-1]), embeddings)
         maps = F.interpolate(maps, size=square.shape[-2:], mode="bilinear", align_corners=False)
         maps = grow_logits(maps[..., top : top + small.shape[-2], left : left + small.shape[-1]], x.shape[-2:])
         return {text: maps[0, i].float().cpu().numpy() for i, text in enumerate(texts)}

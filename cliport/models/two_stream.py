@@ -15,7 +15,7 @@ import torch.nn.functional as F
 from cliport.models.distinct_images import per_sample
 from cliport.models.encoder_net import EncoderNet
 from cliport.models.encoders.base import TRUNK_STRIDES, FrozenEncoder
-from cliport.models.encoders.dense_clip import SIMILARITY_MAPS, similarity_map
+from cliport.models.encoders.dense_clip import SIMILARITY_MAPS, PhraseBank, similarity_map
 from cliport.models.fusion import AddFusion, ConvFusion
 from cliport.models.lingunet import LingUNetLatDecoder
 from cliport.models.preprocess import IN_CHANNELS, transporter_normalize
@@ -35,10 +35,13 @@ class TwoStreamNet(EncoderNet):
     the frozen encoder's dense text-aligned embeddings (:mod:`~cliport.models.encoders.dense_clip`) with the
     instruction's and its phrases' text embeddings joins the spatial laterals (not the reference's net), the trunk
     reading the image at ``similarity_scale`` times its size for them. ``language_gates`` False (with the maps):
-    the decoder's gates read a zero sentence feature, so the instruction enters through the maps alone.
+    the decoder's gates read a zero sentence feature, so the instruction enters through the maps alone. ``bank``
+    (shared by an agent's nets): the maps are each text's probability against it, not cosines.
     A batch that repeats an image (a contrasting pair, a scene under several instructions) runs the spatial stream,
     the trunk and the decoder's image-only layers once per distinct image (:mod:`~cliport.models.distinct_images`).
     """
+
+    bank: PhraseBank | None
 
     def __init__(
         self,
@@ -51,6 +54,7 @@ class TwoStreamNet(EncoderNet):
         similarity_maps: bool = False,
         similarity_scale: float = 1.0,
         language_gates: bool = True,
+        bank: PhraseBank | None = None,
     ) -> None:
         super().__init__(encoder, per_net_clip_stats)
         self.spatial = ResNet45_10s(IN_CHANNELS, out_ch, width)
@@ -60,6 +64,10 @@ class TwoStreamNet(EncoderNet):
         if not language_gates and not similarity_maps:
             raise ValueError("a net without language gates reads the instruction through similarity maps only")
         self.language_gates = language_gates
+        if bank is not None and not similarity_maps:
+            raise ValueError("a phrase bank makes probabilities of similarity maps: it needs them")
+        object.__setattr__(self, "bank", bank)  # not a submodule: the agent owns it and saves it once
+        self.logit_scale = encoder.logit_scale() if bank is not None else 0.0  # frozen: read once, no device sync
         self.semantic = LingUNetLatDecoder(
             encoder, out_ch, self.spatial.lateral_widths, width, scale_up_mid, extra_laterals=self.n_maps
         )
@@ -87,9 +95,16 @@ class TwoStreamNet(EncoderNet):
         trunk = self.encoder_features(images)
         maps = None
         if texts is not None:
-            maps = similarity_map(per_sample(self.dense_embeddings(images, trunk[-1]), index), texts)
+            maps = self.similarity(per_sample(self.dense_embeddings(images, trunk[-1]), index), texts)
         semantic = self.semantic(trunk, sentence, laterals, x.shape[-2:], index, maps)
         return self.fuse(per_sample(spatial, index), semantic)
+
+    def similarity(self, dense: torch.Tensor, texts: torch.Tensor) -> torch.Tensor:
+        """Dense embeddings (N, E, h, w) and K texts each (N, K, E) -> the maps the decoder reads (N, K, h, w):
+        cosines, or with a phrase bank each text's probability against it."""
+        if self.bank is None:
+            return similarity_map(dense, texts)
+        return self.bank(dense, texts, self.logit_scale)
 
     def dense_embeddings(self, images: torch.Tensor, layer4: torch.Tensor) -> torch.Tensor:
         """Raw images (M, 6, H, W) and their last trunk level (M, C, H/32, W/32) -> the frozen encoder's

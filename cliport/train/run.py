@@ -130,6 +130,13 @@ def set_up(config: TrainConfig, resume: bool, check: AgentCheck | None = None) -
                 f"(scale {fitted['scale']:.2f})",
                 file=sys.stderr,
             )
+    if agent.phrase_bank is not None:
+        assert agent.encoder is not None
+        held = agent.phrase_bank.fit(agent.encoder, dataset.instructions())
+        if rank == 0:
+            print(
+                f"similarity maps against a bank of the training set's {held} instructions and phrases", file=sys.stderr
+            )
     if check is not None and world > 1:
         raise TrainError("checks of the training agent run in a single process, not under DDP")
     return TrainRun(config, rank, world, local_rank, folder, device, recipe, agent, optimizer, cooldown, dataset)

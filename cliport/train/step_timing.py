@@ -66,6 +66,8 @@ def step_seconds(config: TrainConfig, steps: int = 4, warmup: int = 2) -> float:
         optimizer, _ = recipe.prepare(agent)
         if agent.centers_sentences:
             agent.fit_sentence_centering(list(PROBE_INSTRUCTIONS))
+        if agent.phrase_bank is not None:
+            agent.phrase_bank.fit(agent.encoder, list(PROBE_INSTRUCTIONS))
         train_step = TrainStep(
             agent,
             optimizer,

@@ -401,6 +401,33 @@ def test_without_language_gates_the_instruction_enters_through_the_maps_alone(ti
         make_agent("two_stream", _similarity_config(tiny_config, language_gates=False))
 
 
+def test_a_phrase_bank_turns_the_maps_into_probabilities_and_rides_in_the_checkpoint(tiny_config, tmp_path) -> None:
+    torch.manual_seed(0)
+    config = _similarity_config(tiny_config, similarity_maps=True, similarity_bank=True, lr=5e-4)
+    agent = make_agent("two_stream", config)
+    assert agent.phrase_bank is agent.pick.net.bank is agent.place.query_net.bank
+    with pytest.raises(RuntimeError, match="phrase bank that was never fitted"):
+        agent.sentence_features([SIMILARITY_INSTRUCTION])
+    agent.phrase_bank.fit(agent.encoder, [SIMILARITY_INSTRUCTION, "put the blue block in the yellow bowl"])
+    rng = np.random.default_rng(0)
+    obs = {"color": rng.integers(0, 255, (320, 160, 3), dtype=np.uint8), "height": np.zeros((320, 160), np.float32)}
+    maps = agent.similarity_heatmaps(obs, "put the pink block in the red bowl")
+    for values in maps.values():
+        assert values.min() >= 0 and values.max() <= 1  # probabilities, not cosines
+    batch = _batch([(RED_BLOCK, GREEN_BOWL, 3, SIMILARITY_INSTRUCTION)])
+    optimizer = agent.make_optimizer()
+    losses = [agent.train_step(batch, optimizer)["loss"] for _ in range(4)]
+    assert losses[-1] < losses[0]
+    path = tmp_path / "agent.pt"
+    agent.save_checkpoint(path)
+    loaded = load_agent(path)
+    assert loaded.phrase_bank.fitted and loaded.config.similarity_bank
+    torch.testing.assert_close(loaded.phrase_bank.embeddings, agent.phrase_bank.embeddings)
+    _assert_same_act(agent, loaded, SIMILARITY_INSTRUCTION)
+    with pytest.raises(ConfigError, match="similarity_bank = true needs similarity_maps"):
+        make_agent("two_stream", _similarity_config(tiny_config, similarity_bank=True))
+
+
 def test_similarity_heatmaps_show_what_the_pick_net_reads(tiny_config) -> None:
     """One map per text at the observation's size; agents without maps have none."""
     torch.manual_seed(0)

@@ -73,6 +73,10 @@ class FrozenEncoder(nn.Module):
         only encoders whose image and text share an embedding space (CLIP) have them."""
         raise ValueError(f"{type(self).__name__} has no image-text embedding space: similarity maps need a CLIP")
 
+    def logit_scale(self) -> float:
+        """The inverse temperature of the encoder's image-text logits (CLIP's learned ``logit_scale``, exp'd)."""
+        raise ValueError(f"{type(self).__name__} has no image-text embedding space: similarity maps need a CLIP")
+
     def image_module(self) -> nn.Module:
         """The image trunk's module (its dtype is switched to bfloat16 on CUDA, see :meth:`set_image_dtype`)."""
         raise NotImplementedError

@@ -135,6 +135,9 @@ class FrozenCLIP(FrozenEncoder):
         with torch.no_grad():
             return dense_embeddings(self.model.visual, layer4.to(self.image_dtype())).float()
 
+    def logit_scale(self) -> float:
+        return float(self.model.logit_scale.exp())
+
     def _encode_sentences(self, texts: list[str]) -> torch.Tensor:
         return self.model.encode_text(self._tokenizer(texts).to(self.mean.device))
 

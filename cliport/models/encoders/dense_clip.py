@@ -19,6 +19,7 @@ from typing import Any
 
 import torch
 import torch.nn.functional as F
+from torch import nn
 
 #: The maps a net with ``similarity_maps`` reads: the whole instruction's and its first two phrases'.
 SIMILARITY_MAPS = 3
@@ -87,3 +88,61 @@ def similarity_map(dense: torch.Tensor, texts: torch.Tensor) -> torch.Tensor:
     if dense.shape[0] != texts.shape[0] or dense.shape[1] != texts.shape[2]:
         raise ValueError(f"dense embeddings {tuple(dense.shape)} and texts {tuple(texts.shape)} differ in N or E")
     return torch.einsum("nehw,nke->nkhw", F.normalize(dense, dim=1), F.normalize(texts, dim=2))
+
+
+def bank_probability(
+    dense: torch.Tensor, texts: torch.Tensor, bank: torch.Tensor, valid: torch.Tensor, logit_scale: float
+) -> torch.Tensor:
+    """Per position, the probability that each text, rather than any entry of a bank, describes it best:
+    dense embeddings (N, E, h, w), K texts per sample (N, K, E), a bank (P, E) and which of its rows are
+    entries (P,) bool -> (N, K, h, w): a softmax at CLIP's inverse temperature ``logit_scale`` over the text
+    and the bank's entries other than the text itself (cosine above 1 - 1e-4). A zero text gives a zero map."""
+    if dense.shape[1] != bank.shape[1]:
+        raise ValueError(f"dense embeddings {tuple(dense.shape)} and the bank {tuple(bank.shape)} differ in E")
+    own = logit_scale * similarity_map(dense, texts)  # (N, K, h, w)
+    others = logit_scale * torch.einsum("nehw,pe->nphw", F.normalize(dense, dim=1), F.normalize(bank, dim=1))
+    units = F.normalize(texts, dim=2)
+    same = torch.einsum("nke,pe->nkp", units, F.normalize(bank, dim=1)) > 1 - 1e-4  # (N, K, P)
+    left_out = same | ~valid  # (N, K, P)
+    others = others[:, None].masked_fill(left_out[..., None, None], float("-inf"))  # (N, K, P, h, w)
+    everything = torch.cat([own[:, :, None], others], dim=2)
+    probability = (own - torch.logsumexp(everything, dim=2)).exp()
+    return probability * (texts.norm(dim=2) > 0)[..., None, None]
+
+
+class PhraseBank(nn.Module):
+    """The texts a similarity map's text competes with in :func:`bank_probability`: the unit text embeddings of
+    the training instructions and of their phrases, up to :attr:`CAPACITY`, fitted once when training starts
+    (:meth:`fit`) and saved with the weights (buffers ``embeddings`` (CAPACITY, E) and ``valid`` (CAPACITY,))."""
+
+    CAPACITY = 256
+    embeddings: torch.Tensor
+    valid: torch.Tensor
+
+    def __init__(self, dim: int) -> None:
+        super().__init__()
+        self.register_buffer("embeddings", torch.zeros(self.CAPACITY, dim))
+        self.register_buffer("valid", torch.zeros(self.CAPACITY, dtype=torch.bool))
+        self.fitted = False  # read without a device sync
+
+    def fit(self, encoder: Any, instructions: list[str]) -> int:
+        """Fill the bank from ``instructions`` (the training set's) with ``encoder``'s text embeddings; returns
+        how many texts it holds. ValueError for none, or more than :attr:`CAPACITY`."""
+        texts = sorted({t for t in instructions if t} | {p for t in instructions if t for p in instruction_phrases(t)})
+        if not texts or len(texts) > self.CAPACITY:
+            raise ValueError(f"a phrase bank holds 1 to {self.CAPACITY} texts, got {len(texts)} from the instructions")
+        with torch.no_grad():
+            self.embeddings.zero_()
+            self.embeddings[: len(texts)] = F.normalize(encoder.sentence_features(texts), dim=1)
+            self.valid.zero_()
+            self.valid[: len(texts)] = True
+        self.fitted = True
+        return len(texts)
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):  # type: ignore[no-untyped-def]  # torch's hook
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+        self.fitted = bool(self.valid.any())
+
+    def forward(self, dense: torch.Tensor, texts: torch.Tensor, logit_scale: float) -> torch.Tensor:
+        """Dense embeddings (N, E, h, w) and texts (N, K, E) -> each text's bank probability (N, K, h, w)."""
+        return bank_probability(dense, texts, self.embeddings, self.valid, logit_scale)

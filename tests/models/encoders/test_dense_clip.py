@@ -105,3 +105,34 @@ def test_vit_tokens_take_the_final_norm_and_projection() -> None:
 def test_a_tower_without_a_pool_or_projection_is_one_clear_error() -> None:
     with pytest.raises(ValueError, match="no dense embeddings for an image tower of type Identity"):
         dense_embeddings(torch.nn.Identity(), torch.zeros(1, 4, 2, 2))
+
+
+def test_bank_probability_is_a_softmax_against_the_other_entries() -> None:
+    from cliport.models.encoders.dense_clip import bank_probability
+
+    dense = torch.zeros(1, 2, 1, 2)
+    dense[0, :, 0, 0] = torch.tensor([1.0, 0.0])  # along the first axis
+    dense[0, :, 0, 1] = torch.tensor([0.0, 1.0])  # along the second
+    bank = torch.tensor([[1.0, 0.0], [0.0, 1.0], [5.0, 5.0]])
+    valid = torch.tensor([True, True, False])  # the third row is no entry
+    texts = torch.tensor([[[2.0, 0.0], [0.0, 0.0]]])  # the first entry itself (left out of its own softmax), a zero
+    got = bank_probability(dense, texts, bank, valid, logit_scale=10.0)
+    assert got.shape == (1, 2, 1, 2)
+    e = torch.exp(torch.tensor(10.0))
+    torch.testing.assert_close(got[0, 0, 0], torch.stack([e / (e + 1), 1 / (1 + e)]))
+    torch.testing.assert_close(got[0, 1], torch.zeros(1, 2))
+
+
+def test_a_phrase_bank_holds_the_instructions_and_their_phrases(clip: FrozenCLIP) -> None:
+    from cliport.models.encoders.dense_clip import PhraseBank
+
+    bank = PhraseBank(clip.sentence_dim)
+    assert not bank.fitted
+    held = bank.fit(clip, ["put the red block in the green bowl", "put the blue block in the green bowl"])
+    assert held == 5 and bank.fitted and int(bank.valid.sum()) == 5  # two instructions, three distinct phrases
+    torch.testing.assert_close(bank.embeddings[:5].norm(dim=1), torch.ones(5))
+    again = PhraseBank(clip.sentence_dim)
+    again.load_state_dict(bank.state_dict())
+    assert again.fitted
+    with pytest.raises(ValueError, match="holds 1 to 256 texts, got 0"):
+        bank.fit(clip, [])
