@@ -47,6 +47,15 @@ ARMS = (
     "pretrained-bank-only",
     "published",
 )
+#: The similarity-map flags of each arm that trains on random or pretrained weights.
+MAP_FLAGS = {
+    "random": [],
+    "pretrained": [],
+    "pretrained-maps": ["--similarity-maps"],
+    "pretrained-maps-only": ["--similarity-maps", "--no-language-gates"],
+    "pretrained-bank": ["--similarity-maps", "--similarity-bank"],
+    "pretrained-bank-only": ["--similarity-maps", "--similarity-bank", "--no-language-gates"],
+}
 QUICKSTART = os.path.join(os.path.dirname(os.path.abspath(__file__)), "quickstart.py")
 
 
@@ -89,11 +98,7 @@ def arm_flags(arm: str, args: Any) -> list[str]:
     if arm == "published":
         return ["--clip-weights", "openai"]
     weights = "random" if arm == "random" else os.path.abspath(args.weights)
-    maps = {
-        "pretrained-maps": ["--similarity-maps"],
-        "pretrained-maps-only": ["--similarity-maps", "--no-language-gates"],
-    }
-    return ["--clip-weights", weights, "--semantic-encoder", args.semantic_encoder, *maps.get(arm, [])]
+    return ["--clip-weights", weights, "--semantic-encoder", args.semantic_encoder, *MAP_FLAGS[arm]]
 
 
 def cell_line(arm: str, n_demos: int, seed: int, results: dict[str, Any], seconds: float | None) -> dict[str, Any]:
@@ -122,6 +127,7 @@ def cell_line(arm: str, n_demos: int, seed: int, results: dict[str, Any], second
         "minutes": round(results["seconds"]["total_s"] / 60, 1),
         "wall_minutes": None if seconds is None else round(seconds / 60, 1),
         "results": results["_path"],
+        "environment": results.get("environment"),
     }
 
 

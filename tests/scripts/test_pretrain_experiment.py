@@ -52,3 +52,19 @@ def test_finished_cells_are_not_run_again_and_are_summarised(tmp_path):
     assert pooled.startswith("| random | 30 | 0, 1 | 18/20 (90 %, 70-97) | 16/20 (80 %, 58-92) | 6/20 (30 %, 15-52) |")
     assert pooled.endswith("| 16/20 (80 %, 58-92) |")
     assert (out / "demo_curve.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_each_arm_passes_its_similarity_flags_to_the_lesson():
+    import argparse
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("pretrain_experiment_flags", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    args = argparse.Namespace(weights="w.safetensors", semantic_encoder="cliport-RN-tiny")
+    flags = {arm: module.arm_flags(arm, args) for arm in module.ARMS}
+    assert flags["random"][:2] == ["--clip-weights", "random"] and "--similarity-maps" not in flags["pretrained"]
+    assert flags["pretrained-maps-only"][-2:] == ["--similarity-maps", "--no-language-gates"]
+    assert flags["pretrained-bank"][-2:] == ["--similarity-maps", "--similarity-bank"]
+    assert flags["pretrained-bank-only"][-3:] == ["--similarity-maps", "--similarity-bank", "--no-language-gates"]
+    assert flags["published"] == ["--clip-weights", "openai"]
