@@ -26,6 +26,7 @@ import numpy as np
 import torch
 
 from cliport.agents import PickPlaceAgent, agent_class, agent_names, load_agent, make_agent
+from cliport.utils.machine import measurement_environment
 
 NEAR_TIE = 1e-3
 DEFAULT_TASKS = [
@@ -172,6 +173,7 @@ def main() -> None:
             report["fp32_vs_bf16"] = setting_agreement(agent, items, bf16_clip=False)
         del agent
         report["graph_memory"] = graph_memory(make, items, args.workers, device)
+    report["environment"] = measurement_environment()
     print(json.dumps(report, indent=2))
 
 

@@ -16,6 +16,7 @@ import tempfile
 import time
 
 from cliport.data.generate import DemoConfig, generate
+from cliport.utils.machine import measurement_environment
 
 REFERENCE_BYTES_PER_STEP = 6.45e6
 
@@ -66,6 +67,7 @@ def main() -> None:
             "num_workers": 2,
             "augment": True,
         }
+    out["environment"] = measurement_environment()
     print(json.dumps(out, indent=2))
 
 

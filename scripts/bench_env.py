@@ -15,6 +15,7 @@ import time
 from cliport.env import shapes
 from cliport.env.environment import EnvConfig, Environment
 from cliport.env.primitives import pick_place
+from cliport.utils.machine import measurement_environment
 
 
 def _scene(env: Environment) -> list[int]:
@@ -76,6 +77,7 @@ def main() -> None:
         "half_resolution": bench_observation(0.5, args.renderer, args.repeats),
         "pick_place": bench_pick_place(args.renderer, max(args.repeats // 2, 3)),
     }
+    result["environment"] = measurement_environment()
     print(json.dumps(result, indent=2))
 
 

@@ -16,6 +16,7 @@ import time
 
 from cliport.env.environment import EnvConfig
 from cliport.errors import UserError
+from cliport.utils.machine import measurement_environment
 
 
 def _agent(checkpoint: str | None, device: str):
@@ -86,6 +87,7 @@ def main() -> None:
     except (UserError, KeyError) as e:
         sys.exit(f"error: {e.args[0] if e.args else e}")
     result["policy"] = "oracle" if args.oracle else (args.checkpoint or "random tiny transporter_only")
+    result["environment"] = measurement_environment()
     print(json.dumps(result, indent=2))
 
 

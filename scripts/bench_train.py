@@ -44,6 +44,7 @@ from cliport.train.config import TrainConfig  # noqa: E402
 from cliport.train.loader import training_loader  # noqa: E402
 from cliport.train.recipes import get_recipe  # noqa: E402
 from cliport.train.trainer import train  # noqa: E402
+from cliport.utils.machine import measurement_environment
 
 TASK = "place-red-in-green"
 INSTRUCTION = "put the red blocks in a green bowl"
@@ -379,6 +380,7 @@ def main() -> None:
         report["ratio_note"] = "ours / the reference's at batch 1 (train samples/s) and reference act time / ours" + (
             "" if args.width == 1.0 else f"; ours ran at width {args.width}, the reference at the published size"
         )
+    report["environment"] = measurement_environment()
     _write(report, args.out)
     if partial:
         with contextlib.suppress(OSError):

@@ -35,6 +35,7 @@ from cliport.data.seeds import episode_seeds
 from cliport.env.environment import EnvConfig
 from cliport.errors import ConfigError
 from cliport.evaluation.engine import BLIND, ORACLE, EvalEngine, resolve_workers
+from cliport.utils.machine import measurement_environment
 
 
 def _commit() -> str | None:
@@ -199,7 +200,7 @@ def main() -> None:
             record=record,
             policy=BLIND if args.blind else ORACLE,
         )
-        print(json.dumps(result), flush=True)
+        print(json.dumps({**result, "environment": measurement_environment()}), flush=True)
 
 
 if __name__ == "__main__":

@@ -55,6 +55,7 @@ from cliport.train.step_timing import step_seconds
 from cliport.train.trainer import train
 from cliport.utils.config import add_flags, device_defaults, given_flags
 from cliport.utils.files import read_json, write_json
+from cliport.utils.machine import measurement_environment
 from cliport.utils.run_dir import RunDir
 from cliport.utils.tensorboard import log_result, summary_writer
 
@@ -431,6 +432,7 @@ def main() -> None:
         "task": args.task,
         "agent": args.agent,
         "device": device,
+        "environment": measurement_environment(),
         "demos": {k: demos[k] for k in ("saved", "skipped_existing", "demos_per_minute", "mb_per_step")},
         "training": {
             "agent": args.agent,

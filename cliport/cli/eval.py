@@ -58,6 +58,7 @@ def main(argv: list[str] | None = None) -> None:
     from cliport.utils.device import resolve_device
     from cliport.utils.files import read_json, write_json
     from cliport.utils.hub import HF_PREFIX, resolve_run_dir
+    from cliport.utils.machine import measurement_environment
     from cliport.utils.run_dir import RunDir
     from cliport.utils.tensorboard import log_result, summary_writer
 
@@ -129,6 +130,7 @@ def main(argv: list[str] | None = None) -> None:
                     validated_with = None  # said once
                 result.update(checkpoint=which, checkpoint_file=path, **agent.describe(), run_dir=source)
                 result["recipe"] = run_config.recipe  # how the evaluated weights were trained
+                result["environment"] = measurement_environment()
                 write_json(os.path.join(out, f"{name}-{config.mode}-{which}.json"), result)
                 # "last" is drawn at the run's final step (where a finished run's last.pt was saved).
                 step = run_config.n_steps if which == "last" else int(which)

@@ -29,6 +29,7 @@ from cliport.pretrain.config import PretrainConfig
 from cliport.pretrain.loss import MAX_LOGIT_SCALE, contrastive_loss, retrieval_accuracy
 from cliport.pretrain.probe import image_size, normalise, probe_weights
 from cliport.utils.files import read_json, save_torch, write_json
+from cliport.utils.machine import measurement_environment
 
 #: Settings a run may change when it is resumed (the others would make its state another run's).
 RESUMABLE_CHANGES = {"steps", "log_every", "save_every", "render_workers", "device", "out_dir"}
@@ -194,6 +195,7 @@ def pretrain(config: PretrainConfig, progress: bool = True, probe: bool = True) 
         }
         record["seconds"]["probe"] = round(time.perf_counter() - mark, 1)
     record["seconds"]["total"] = round(time.perf_counter() - start, 1)
+    record["environment"] = measurement_environment()
     write_json(os.path.join(config.out_dir, RECORD_FILE), record)
     return record
 

@@ -33,6 +33,7 @@ from cliport.study.config import Cell, StudyConfig
 from cliport.study.lock import FileLock
 from cliport.study.report import summarise_run
 from cliport.utils.files import read_json, write_json
+from cliport.utils.machine import measurement_environment
 from cliport.utils.run_dir import RunDir
 
 
@@ -128,6 +129,7 @@ def _attempt(config: StudyConfig, cell: Cell, files: CellFiles, progress: bool) 
         "resumed_from_step": start["resume_step"],
         "host": start["host"],
         "finished": time.time(),
+        "environment": measurement_environment(),
     }
     write_json(files.result, record)  # the completion: an atomic rename
     files.log_event({"event": "done", "attempt": attempt, "pid": os.getpid(), "time": time.time(), "minutes": minutes})

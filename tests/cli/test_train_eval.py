@@ -80,6 +80,7 @@ def test_train_then_eval(runs, agent, capsys):
     assert summary["clip_weights"] == ("random" if agent == "two_stream" else None)
     assert summary["checkpoint"] == val["best_step"] and summary["renderer"] == val["renderer"]
     assert summary["recipe"] == recipe
+    assert summary["environment"]["cpu_line"] and summary["environment"]["command"]  # where it was measured
     with open(os.path.join(run_dir, "eval", f"{TASK}-test-{val['best_step']}.json")) as f:
         assert [e["seed"] for e in json.load(f)["episodes"]] == [10001, 10003]
 

@@ -58,6 +58,7 @@ def test_a_resumed_run_ends_as_a_straight_one(tiny_cache: str, tmp_path, monkeyp
     """Interrupted after its save at step 4, a run of 6 steps resumes there and ends with the straight run's weights
     and logged rows."""
     straight = pretrain(tiny_config(str(tmp_path / "straight"), tiny_cache, steps=6, save_every=4), False, False)
+    assert straight["environment"]["cpu"]["cores"] >= 1 and straight["environment"]["versions"]["torch"]
     calls = {"n": 0}
     real_step = trainer.train_step
 
