@@ -4,6 +4,7 @@ seen and unseen colours apart, at each image scale asked for. Prints one JSON ob
 
     python scripts/dense_probe.py --clip-weights out/pretrain/open_clip_model.safetensors --scales 0.5 1 2
     python scripts/dense_probe.py --clip-weights random --semantic-encoder cliport-RN-tiny
+    python scripts/dense_probe.py --clip-weights out/pretrain/open_clip_model.safetensors --scales 1 --bank
 """
 
 from __future__ import annotations
@@ -25,6 +26,12 @@ def main() -> None:
     parser.add_argument("--task", default=TASK, help="a put-one-block-in-bowl-* task")
     parser.add_argument("--scenes", type=int, default=50, help="test scenes (the first of the test split)")
     parser.add_argument("--scales", nargs="+", type=float, default=[0.5, 1.0, 2.0], help="image scales to read at")
+    parser.add_argument(
+        "--bank",
+        action="store_true",
+        help="also read each map as its caption's probability against the seen colours' block and bowl captions "
+        "(as agents with similarity_bank read them)",
+    )
     parser.add_argument("--out", help="also write the JSON here")
     args = parser.parse_args()
     if args.scenes < 1 or any(s <= 0 for s in args.scales):
@@ -32,6 +39,7 @@ def main() -> None:
     from cliport.data.seeds import episode_seeds
     from cliport.models.encoders.clip_encoder import load_clip
     from cliport.pretrain.dense_retrieval import dense_retrieval
+    from cliport.tasks.colors import split_colors
 
     model = args.semantic_encoder
     if model is None:
@@ -46,11 +54,14 @@ def main() -> None:
     encoder = load_clip(args.clip_weights, model)
     seeds = episode_seeds("test", args.scenes)
     report = {"task": args.task, "clip_weights": args.clip_weights, "semantic_encoder": model, "scales": {}}
-    for scale in args.scales:
-        result = dense_retrieval(encoder, args.task, seeds, scale=scale)
-        report["scales"][str(scale)] = {k: result[k] for k in ("seen", "unseen", "scenes")}
-        print(f"scale {scale}: seen {result['seen']['found']}/{result['seen']['n']}, unseen "
-              f"{result['unseen']['found']}/{result['unseen']['n']} found (chance 1 in 3)", flush=True)  # fmt: skip
+    banks = {"cosine": ()} if not args.bank else {"cosine": (), "bank": split_colors("train", False)}
+    for how, colors in banks.items():
+        for scale in args.scales:
+            result = dense_retrieval(encoder, args.task, seeds, scale=scale, bank_colors=colors)
+            key = str(scale) if how == "cosine" else f"{scale} bank"
+            report["scales"][key] = {k: result[k] for k in ("seen", "unseen", "scenes", "bank")}
+            print(f"scale {scale}, {how}: seen {result['seen']['found']}/{result['seen']['n']}, unseen "
+                  f"{result['unseen']['found']}/{result['unseen']['n']} found (chance 1 in 3)", flush=True)  # fmt: skip
     report["environment"] = measurement_environment()
     text = json.dumps(report, indent=2)
     if args.out:

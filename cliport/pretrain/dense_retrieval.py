@@ -7,6 +7,10 @@ trunk position, and each of the scene's three block colours is captioned as the 
 oracle camera's object ids); the caption is **found** when the block it names scores highest of the three. That is
 the pick a policy reading only this map would make for a swapped instruction: chance is one in three. Seen and
 unseen colours (:data:`~cliport.pretrain.vocabulary.UNSEEN_COLORS`) are counted apart.
+
+With a bank (``bank_colors``), each map is the caption's probability against the bank's captions instead of its
+cosine (:func:`~cliport.models.encoders.dense_clip.bank_probability`, as agents with ``similarity_bank`` read it):
+a block and a bowl caption of each bank colour, e.g. the seen palette, the words a policy's demos would show.
 """
 
 from __future__ import annotations
@@ -21,15 +25,18 @@ import torch.nn.functional as F
 from cliport.evaluation.instruction_following import lesson_task
 from cliport.models.encoders.base import TRUNK_STRIDES
 from cliport.models.encoders.clip_encoder import FrozenCLIP
-from cliport.models.encoders.dense_clip import similarity_map
+from cliport.models.encoders.dense_clip import bank_probability, similarity_map
 from cliport.pretrain.vocabulary import UNSEEN_COLORS, probe_color_caption
 
 STRIDE = TRUNK_STRIDES[-1]  # the trunk's last level: the image is padded to a multiple of it
 
 
-def caption_maps(encoder: FrozenCLIP, color: np.ndarray, captions: list[str], scale: float) -> torch.Tensor:
-    """A top-down colour map (H, W, 3) uint8 and C captions -> their cosine-similarity maps (C, H, W), the image
-    read at ``scale`` times its size (padded to a multiple of the trunk's stride) and the maps resized back."""
+def caption_maps(
+    encoder: FrozenCLIP, color: np.ndarray, captions: list[str], scale: float, bank: list[str] | None = None
+) -> torch.Tensor:
+    """A top-down colour map (H, W, 3) uint8 and C captions -> their cosine-similarity maps (C, H, W), or with
+    ``bank`` (texts) each caption's probability against it, the image read at ``scale`` times its size (padded
+    to a multiple of the trunk's stride) and the maps resized back."""
     h, w = color.shape[:2]
     rgb = torch.from_numpy(np.ascontiguousarray(color)).permute(2, 0, 1)[None].float() / 255.0
     size = (max(1, round(h * scale)), max(1, round(w * scale)))
@@ -38,7 +45,13 @@ def caption_maps(encoder: FrozenCLIP, color: np.ndarray, captions: list[str], sc
     rgb = F.pad(rgb, (0, pad[0], 0, pad[1]))
     with torch.no_grad():
         dense = encoder.dense_embeddings(encoder.image_features(rgb)[-1])  # (1, E, h', w')
-        maps = similarity_map(dense, encoder.sentence_features(captions)[None])  # (1, C, h', w')
+        texts = encoder.sentence_features(captions)[None]
+        if bank:
+            entries = encoder.sentence_features(bank)
+            valid = torch.ones(len(bank), dtype=torch.bool)
+            maps = bank_probability(dense, texts, entries, valid, encoder.logit_scale())  # (1, C, h', w')
+        else:
+            maps = similarity_map(dense, texts)
         maps = F.interpolate(maps, size=rgb.shape[-2:], mode="bilinear", align_corners=False)
     return F.interpolate(maps[..., : size[0], : size[1]], size=(h, w), mode="bilinear", align_corners=False)[0]
 
@@ -64,12 +77,14 @@ def dense_retrieval(
     scale: float = 1.0,
     camera_scale: float = 1.0,
     mode: str = "test",
+    bank_colors: Iterable[str] = (),
 ) -> dict[str, Any]:
     """Each scene of ``seeds``: every block colour captioned and looked for (module docstring). Returns
     ``{"seen": {"found", "n", "rate"}, "unseen": {...}, "scenes": n, "scale": scale, "records": [...]}``."""
     from cliport.env.environment import EnvConfig, Environment
 
     task = lesson_task(task_name, mode, "dense retrieval")
+    bank = [probe_color_caption(c, noun) for c in bank_colors for noun in ("block", "bowl")]
     records: list[dict[str, Any]] = []
     with Environment(EnvConfig.defaults(camera_scale=camera_scale), task=task) as env:
         for seed in seeds:
@@ -80,7 +95,7 @@ def dense_retrieval(
             masks = {name: ids == body for name, body in task.block_colors.items()}
             masks = {name: mask for name, mask in masks.items() if mask.any()}  # a block the camera cannot see
             captions = [probe_color_caption(name) for name in masks]
-            scores = block_scores(caption_maps(encoder, obs["color"], captions, scale), masks)
+            scores = block_scores(caption_maps(encoder, obs["color"], captions, scale, bank), masks)
             for name, ok in found(scores).items():
                 records.append({"seed": int(seed), "color": name, "unseen": name in UNSEEN_COLORS, "found": ok})
     out: dict[str, Any] = {}
@@ -88,4 +103,5 @@ def dense_retrieval(
         rows = [r for r in records if r["unseen"] is unseen]
         hits = sum(r["found"] for r in rows)
         out[part] = {"found": hits, "n": len(rows), "rate": round(hits / len(rows), 4) if rows else None}
-    return {**out, "scenes": len({r["seed"] for r in records}), "scale": scale, "records": records}
+    scenes = len({r["seed"] for r in records})
+    return {**out, "scenes": scenes, "scale": scale, "bank": sorted(set(bank_colors)), "records": records}

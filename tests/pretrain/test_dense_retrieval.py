@@ -33,6 +33,16 @@ def test_caption_maps_cover_the_map_at_any_scale() -> None:
         assert not torch.allclose(maps[0], maps[1])
 
 
+def test_caption_maps_against_a_bank_are_probabilities() -> None:
+    encoder = load_clip("random", "cliport-RN-tiny")
+    color = np.random.default_rng(0).integers(0, 256, (96, 64, 3), dtype=np.uint8)
+    maps = caption_maps(encoder, color, ["a red block", "a pink block"], 1.0, bank=["a red block", "a blue bowl"])
+    assert maps.shape == (2, 96, 64) and maps.min() >= 0 and maps.max() <= 1
+    # "a red block" competes with "a blue bowl" alone (itself left out), "a pink block" with both: a random
+    # encoder's texts are nearly alike, so about 1/2 against 1/3 everywhere
+    assert (maps[0] > maps[1]).all()
+
+
 def test_dense_retrieval_counts_every_block_of_each_scene_once() -> None:
     encoder = load_clip("random", "cliport-RN-tiny")
     report = dense_retrieval(encoder, "put-one-block-in-bowl-unseen-colors", [10001], scale=0.5, camera_scale=0.5)
