@@ -100,10 +100,9 @@ class CLIPConfig(LanguageConfig):
             sides rounded to multiples of 32) for the maps alone: at stride 32 a block of the half-size CPU map
             spans a fifth of a cell, and a finer map finds it more often (docs/results/pretraining.md).
         similarity_bank: with ``similarity_maps``, each map is at every position the probability (CLIP's
-            softmax at its own temperature) that the text, rather than any of the training instructions and their
-            phrases (a bank fitted when training starts, saved with the weights), describes it best, instead of the
-            raw cosine: "the red block" then lights the red block, not every block alike
-            (docs/results/pretraining.md).
+            softmax at its own temperature) that the text, rather than any of the training instructions' phrases
+            (a bank fitted when training starts, saved with the weights), describes it best, instead of the raw
+            cosine: "the red block" then lights the red block, not every block alike (docs/results/pretraining.md).
         language_gates: the semantic decoder's layers are gated by the sentence feature, as CLIPort's are; false
             (needs ``similarity_maps``): they read a zero sentence feature, so that the instruction reaches the
             nets through the similarity maps alone, where a word unseen in the demos still finds its colour.

@@ -134,9 +134,7 @@ def set_up(config: TrainConfig, resume: bool, check: AgentCheck | None = None) -
         assert agent.encoder is not None
         held = agent.phrase_bank.fit(agent.encoder, dataset.instructions())
         if rank == 0:
-            print(
-                f"similarity maps against a bank of the training set's {held} instructions and phrases", file=sys.stderr
-            )
+            print(f"similarity maps against a bank of the training set's {held} phrases", file=sys.stderr)
     if check is not None and world > 1:
         raise TrainError("checks of the training agent run in a single process, not under DDP")
     return TrainRun(config, rank, world, local_rank, folder, device, recipe, agent, optimizer, cooldown, dataset)

@@ -112,7 +112,7 @@ def bank_probability(
 
 class PhraseBank(nn.Module):
     """The texts a similarity map's text competes with in :func:`bank_probability`: the unit text embeddings of
-    the training instructions and of their phrases, up to :attr:`CAPACITY`, fitted once when training starts
+    the training instructions' phrases, up to :attr:`CAPACITY`, fitted once when training starts
     (:meth:`fit`) and saved with the weights (buffers ``embeddings`` (CAPACITY, E) and ``valid`` (CAPACITY,))."""
 
     CAPACITY = 256
@@ -126,11 +126,14 @@ class PhraseBank(nn.Module):
         self.fitted = False  # read without a device sync
 
     def fit(self, encoder: Any, instructions: list[str]) -> int:
-        """Fill the bank from ``instructions`` (the training set's) with ``encoder``'s text embeddings; returns
-        how many texts it holds. ValueError for none, or more than :attr:`CAPACITY`."""
-        texts = sorted({t for t in instructions if t} | {p for t in instructions if t for p in instruction_phrases(t)})
+        """Fill the bank with ``encoder``'s text embeddings of the phrases of ``instructions`` (the training set's;
+        not the instructions themselves, which would compete with their own phrases); returns how many it holds.
+        ValueError for none, or more than :attr:`CAPACITY`."""
+        texts = sorted({phrase for text in instructions if text for phrase in instruction_phrases(text)})
         if not texts or len(texts) > self.CAPACITY:
-            raise ValueError(f"a phrase bank holds 1 to {self.CAPACITY} texts, got {len(texts)} from the instructions")
+            raise ValueError(
+                f"a phrase bank holds 1 to {self.CAPACITY} phrases, got {len(texts)} from the instructions"
+            )
         with torch.no_grad():
             self.embeddings.zero_()
             self.embeddings[: len(texts)] = F.normalize(encoder.sentence_features(texts), dim=1)
