@@ -33,7 +33,6 @@ from cliport.study.config import Cell, StudyConfig
 from cliport.study.lock import FileLock
 from cliport.study.report import summarise_run
 from cliport.utils.files import read_json, write_json
-from cliport.utils.machine import measurement_environment
 from cliport.utils.run_dir import RunDir
 
 
@@ -129,7 +128,7 @@ def _attempt(config: StudyConfig, cell: Cell, files: CellFiles, progress: bool) 
         "resumed_from_step": start["resume_step"],
         "host": start["host"],
         "finished": time.time(),
-        "environment": measurement_environment(),
+        "environment": _environment(),
     }
     write_json(files.result, record)  # the completion: an atomic rename
     files.log_event({"event": "done", "attempt": attempt, "pid": os.getpid(), "time": time.time(), "minutes": minutes})
@@ -190,3 +189,10 @@ def generate_demos(config: StudyConfig, task: str, shard: int, progress: bool = 
     )
     shards = (shard, config.demo_shards)
     return generate(task, "train", max(config.n_demos), demo_config, shard=shards, progress=progress)
+
+
+def _environment() -> dict[str, Any]:
+    """The machine's record (imported here: the study's --help must not import torch)."""
+    from cliport.utils.machine import measurement_environment
+
+    return measurement_environment()
