@@ -8,7 +8,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from cliport.agents import decode
+from cliport.agents import decode, sentences
 from cliport.agents.base import PickPlaceAgent
 from cliport.agents.config import CLIPConfig, LanguageConfig
 from cliport.agents.registry import register_agent
@@ -31,15 +31,14 @@ class TwoStreamAgent(PickPlaceAgent):
             if not isinstance(config, CLIPConfig):
                 raise TypeError(f"{type(config).__name__} names no CLIP: pass the encoder")
             encoder = load_clip(config.clip_weights, config.semantic_encoder)
-        stats = isinstance(config, CLIPConfig) and config.per_net_clip_stats  # RN50-BERT has no CLIP
-        maps = isinstance(config, CLIPConfig) and config.similarity_maps
-        bank = PhraseBank(encoder.sentence_dim) if isinstance(config, CLIPConfig) and config.similarity_bank else None
+        clip = config if isinstance(config, CLIPConfig) else None  # RN50-BERT has no CLIP
+        bank = PhraseBank(encoder.sentence_dim) if clip is not None and clip.similarity_bank else None
         net: dict[str, Any] = {
-            "per_net_clip_stats": stats,
+            "per_net_clip_stats": clip is not None and clip.per_net_clip_stats,
             "scale_up_mid": config.scale_up_mid,
-            "similarity_maps": maps,
-            "similarity_scale": config.similarity_scale if isinstance(config, CLIPConfig) else 1.0,
-            "language_gates": config.language_gates if isinstance(config, CLIPConfig) else True,
+            "similarity_maps": clip is not None and clip.similarity_maps,
+            "similarity_scale": clip.similarity_scale if clip is not None else 1.0,
+            "language_gates": clip.language_gates if clip is not None else True,
             "bank": bank,
         }
         pick = PickHead(TwoStreamNet(encoder, 1, config.width, **net), config.map_scale)
@@ -55,10 +54,9 @@ class TwoStreamAgent(PickPlaceAgent):
 
     @torch.no_grad()
     def similarity_heatmaps(self, obs: dict[str, np.ndarray], instruction: str) -> dict[str, np.ndarray]:
-        """With ``similarity_maps``: the maps of the instruction and of its phrases that the pick net reads (cosines,
-        or probabilities against its phrase bank)
-        for ``obs`` (its map shrunk by ``map_scale`` and padded to a square as the pick head does), cropped and
-        grown back to the observation's (H, W); ``{}`` without them."""
+        """With ``similarity_maps``: the maps of the instruction and of its phrases that the pick net reads for
+        ``obs`` (cosines, or probabilities against its phrase bank), from its map shrunk by ``map_scale`` and padded
+        to a square as the pick head does, cropped and grown back to the observation's (H, W); ``{}`` without."""
         net = self.pick.net
         if not isinstance(net, TwoStreamNet) or not net.n_maps:
             return {}
@@ -67,7 +65,7 @@ class TwoStreamAgent(PickPlaceAgent):
         small = shrink_map(x, self.pick.map_scale)
         square, (top, left) = pad_square(small)
         texts = [instruction, *instruction_phrases(instruction)]
-        embeddings = F.normalize(net.encoder.sentence_features(texts), dim=1)[None]
+        embeddings = sentences.similarity_texts(net.encoder, [instruction]).unflatten(1, (net.n_maps, -1))
         maps = net.similarity(net.dense_embeddings(square, net.encoder_features(square)[-1]), embeddings)
         maps = F.interpolate(maps, size=square.shape[-2:], mode="bilinear", align_corners=False)
         maps = grow_logits(maps[..., top : top + small.shape[-2], left : left + small.shape[-1]], x.shape[-2:])

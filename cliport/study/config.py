@@ -9,7 +9,7 @@ from typing import Any
 
 from cliport.errors import ConfigError
 from cliport.evaluation.published import paper_recipes, published_results, published_task_name
-from cliport.train.config import TrainConfig, default_place_rotations
+from cliport.train.config import TrainConfig
 from cliport.utils.config import from_dict, read_defaults
 from cliport.utils.files import read_json
 
@@ -180,8 +180,6 @@ class StudyConfig:
             raise ConfigError(
                 f"--train-option cannot set {', '.join(reserved)}: the study sets it (use its own flag if it has one)"
             )
-        papers = default_place_rotations(task, papers=True)  # the papers' count on every task, round bowls too
-        rotations = {} if papers is None else {"n_rotations": papers}
         given = {
             **self.train_options,
             "agent": agent,
@@ -196,10 +194,8 @@ class StudyConfig:
             "batch_size": self.batch_size,
             "device": self.device,
             "checkpoint_steps": self.checkpoint_steps,
-            "agent_config": {
-                **rotations,
-                **{k: v for k, v in self.agent_config.items() if k in fields},
-            },
+            # No default_place_rotations here: the study keeps the agent's (the papers') count on every task.
+            "agent_config": {k: v for k, v in self.agent_config.items() if k in fields},
             "env": {"camera_scale": self.camera_scale},
         }
         return TrainConfig.build({k: v for k, v in given.items() if v is not None})

@@ -353,15 +353,21 @@ def test_similarity_maps_carry_the_phrases_into_the_pick(tiny_config) -> None:
         agent.pick.net(raw, sentence[:, : agent.encoder.sentence_dim])
 
 
-def test_similarity_maps_train_and_round_trip(tiny_config, tmp_path: Path) -> None:
-    torch.manual_seed(0)
-    agent = make_agent("two_stream", _similarity_config(tiny_config, similarity_maps=True, lr=5e-4))
+def _train_and_save(agent, tmp_path: Path) -> Path:
+    """Four steps on one sample (the loss must fall), then the checkpoint's path."""
     batch = _batch([(RED_BLOCK, GREEN_BOWL, 3, SIMILARITY_INSTRUCTION)])
     optimizer = agent.make_optimizer()
     losses = [agent.train_step(batch, optimizer)["loss"] for _ in range(4)]
     assert losses[-1] < losses[0]
     path = tmp_path / "agent.pt"
     agent.save_checkpoint(path)
+    return path
+
+
+def test_similarity_maps_train_and_round_trip(tiny_config, tmp_path: Path) -> None:
+    torch.manual_seed(0)
+    agent = make_agent("two_stream", _similarity_config(tiny_config, similarity_maps=True, lr=5e-4))
+    path = _train_and_save(agent, tmp_path)
     assert torch.load(path, weights_only=True)["config"]["similarity_maps"] is True
     loaded = load_agent(path)
     assert loaded.config.similarity_maps and loaded.config.similarity_scale == agent.config.similarity_scale
@@ -414,12 +420,7 @@ def test_a_phrase_bank_turns_the_maps_into_probabilities_and_rides_in_the_checkp
     maps = agent.similarity_heatmaps(obs, "put the pink block in the red bowl")
     for values in maps.values():
         assert values.min() >= 0 and values.max() <= 1  # probabilities, not cosines
-    batch = _batch([(RED_BLOCK, GREEN_BOWL, 3, SIMILARITY_INSTRUCTION)])
-    optimizer = agent.make_optimizer()
-    losses = [agent.train_step(batch, optimizer)["loss"] for _ in range(4)]
-    assert losses[-1] < losses[0]
-    path = tmp_path / "agent.pt"
-    agent.save_checkpoint(path)
+    path = _train_and_save(agent, tmp_path)
     loaded = load_agent(path)
     assert loaded.phrase_bank.fitted and loaded.config.similarity_bank
     torch.testing.assert_close(loaded.phrase_bank.embeddings, agent.phrase_bank.embeddings)

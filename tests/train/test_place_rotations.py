@@ -17,10 +17,9 @@ KITS = "assembling-kits"  # each hole has its yaw
 QUICKSTART = Path(__file__).resolve().parents[2] / "scripts" / "quickstart.py"
 
 
-def test_round_bowls_take_one_rotation_and_kits_the_agents_unless_the_papers_are_asked_for() -> None:
+def test_round_bowls_take_one_rotation_and_kits_the_agents() -> None:
     assert default_place_rotations(ROUND_BOWLS) == 1
     assert default_place_rotations(KITS) is None
-    assert default_place_rotations(ROUND_BOWLS, papers=True) is None
 
 
 def _train(*flags: str) -> int:
