@@ -34,7 +34,7 @@ def _parser() -> tuple[argparse.ArgumentParser, list[str]]:
 def main(argv: list[str] | None = None) -> None:
     parser, dests = _parser()
     args = parser.parse_args(argv)
-    from cliport.pretrain.cache import load_crops, render_cache
+    from cliport.pretrain.cache import load_crops, load_scene_maps, render_cache
     from cliport.pretrain.config import load_config
     from cliport.pretrain.probe import check_weights_source, probe_weights
     from cliport.pretrain.trainer import check_device, pretrain, summary_lines
@@ -54,7 +54,9 @@ def main(argv: list[str] | None = None) -> None:
             progress=not args.no_progress,
         )
         crops = load_crops(config.cache_dir, "probe", config.probe_scenes)
-        print(json.dumps(probe_weights(args.probe, config.semantic_encoder, crops, device), indent=2))
+        maps = load_scene_maps(config.cache_dir, "probe", config.probe_scenes)
+        result = probe_weights(args.probe, config.semantic_encoder, crops, device, maps, config.dense_scale)
+        print(json.dumps(result, indent=2))
         return
     record = pretrain(config, progress=not args.no_progress)
     print("\n".join(summary_lines(record)))

@@ -5,7 +5,9 @@ Layout of a cache folder::
 
     manifest.json              what the crops were rendered with (crop size, camera scale, renderer, format)
     train/seeds-000000-000024.npz   the crops of train scenes 0-24: ``images`` (N, S, S, 3) uint8 and ``meta``
-    probe/seeds-1000000-1000024.npz (the crops' metadata as UTF-8 JSON); probe scenes are held out of training
+    probe/seeds-1000000-1000024.npz (the crops' metadata as UTF-8 JSON), and the scenes' maps: ``map_color``
+                               (25, H, W, 3) uint8, ``map_labels`` (25, H, W) uint8 and ``map_things`` (JSON);
+                               probe scenes are held out of training
 
 Train scenes are seeds 0, 1, 2, ...; probe scenes :data:`PROBE_FIRST_SEED` on, so no probe scene is ever trained
 on. A folder rendered with other settings is refused in one line (its crops would silently differ); more scenes
@@ -29,7 +31,7 @@ from cliport.errors import ConfigError
 from cliport.utils.files import read_json, write_bytes, write_json
 
 #: Bumped when the crops a seed renders change.
-CACHE_FORMAT = 1
+CACHE_FORMAT = 2
 SPLITS = ("train", "probe")
 #: The first seed of each split's scenes.
 FIRST_SEED = {"train": 0, "probe": 1_000_000}
@@ -48,6 +50,19 @@ class CropSet:
 
     def __len__(self) -> int:
         return len(self.meta)
+
+
+@dataclass
+class SceneMaps:
+    """Whole scenes of one split (:class:`cliport.pretrain.render.SceneMap`): ``color`` (N, H, W, 3) uint8,
+    ``labels`` (N, H, W) uint8 and ``things`` (N lists of [kind, noun, color]), in seed order."""
+
+    color: np.ndarray
+    labels: np.ndarray
+    things: list[list[list[Any]]]
+
+    def __len__(self) -> int:
+        return len(self.things)
 
 
 def shard_seeds(split: str, n_scenes: int) -> list[tuple[int, int]]:
@@ -91,10 +106,18 @@ def _init_worker(camera_scale: float, crop_px: int, renderer: str) -> None:
 
 def _render_shard(path: str, seeds: tuple[int, int]) -> tuple[int, str]:
     """Render the scenes ``seeds`` (first, last) into ``path``; (crops written, renderer kind)."""
-    crops = [crop for seed in range(seeds[0], seeds[1] + 1) for crop in _RENDERER.render(seed)]
+    scenes = [_RENDERER.render(seed) for seed in range(seeds[0], seeds[1] + 1)]
+    crops = [crop for scene_crops, _ in scenes for crop in scene_crops]  # scene order, then each scene's order
+    maps = [scene_map for _, scene_map in scenes]
     buffer = io.BytesIO()
-    meta = json.dumps([crop.meta() for crop in crops]).encode()
-    np.savez_compressed(buffer, images=np.stack([c.image for c in crops]), meta=np.frombuffer(meta, np.uint8))
+    np.savez_compressed(
+        buffer,
+        images=np.stack([c.image for c in crops]),
+        meta=_json_bytes([crop.meta() for crop in crops]),
+        map_color=np.stack([m.color for m in maps]),
+        map_labels=np.stack([m.labels for m in maps]),
+        map_things=_json_bytes([m.things for m in maps]),
+    )
     write_bytes(path, buffer.getvalue())
     return len(crops), str(_RENDERER.renderer_kind)
 
@@ -160,16 +183,38 @@ def _close_renderer() -> None:
         _RENDERER = None
 
 
-def load_crops(folder: str, split: str, n_scenes: int) -> CropSet:
-    """The crops of the first ``n_scenes`` scenes of ``split`` (rendered by :func:`render_cache`), in seed order."""
-    images, meta = [], []
+def _json_bytes(value: Any) -> np.ndarray:
+    return np.frombuffer(json.dumps(value).encode(), np.uint8)
+
+
+_JSON = ("meta", "map_things")  # the keys stored as UTF-8 JSON
+
+
+def _read_shards(folder: str, split: str, n_scenes: int, keys: tuple[str, ...]) -> list[dict[str, Any]]:
+    """Of each shard of the first ``n_scenes`` scenes of ``split``: ``keys`` (arrays; JSON ones decoded)."""
+    shards = []
     for seeds in shard_seeds(split, n_scenes):
         path = shard_path(folder, split, seeds)
         if not os.path.exists(path):
             raise ConfigError(f"{folder} lacks the crops of {split} scenes {seeds[0]}-{seeds[1]}: render them first")
         with np.load(path, allow_pickle=False) as data:
-            images.append(data["images"])
-            meta += json.loads(data["meta"].tobytes().decode())
-    if not images:
+            shards.append({k: json.loads(data[k].tobytes().decode()) if k in _JSON else data[k] for k in keys})
+    if not shards:
         raise ConfigError(f"no {split} scenes asked for: at least one is needed")
-    return CropSet(np.concatenate(images), meta)
+    return shards
+
+
+def load_crops(folder: str, split: str, n_scenes: int) -> CropSet:
+    """The crops of the first ``n_scenes`` scenes of ``split`` (rendered by :func:`render_cache`), in seed order."""
+    shards = _read_shards(folder, split, n_scenes, ("images", "meta"))
+    return CropSet(np.concatenate([s["images"] for s in shards]), [m for s in shards for m in s["meta"]])
+
+
+def load_scene_maps(folder: str, split: str, n_scenes: int) -> SceneMaps:
+    """The maps of the first ``n_scenes`` scenes of ``split`` (rendered by :func:`render_cache`), in seed order."""
+    shards = _read_shards(folder, split, n_scenes, ("map_color", "map_labels", "map_things"))
+    return SceneMaps(
+        np.concatenate([s["map_color"] for s in shards]),
+        np.concatenate([s["map_labels"] for s in shards]),
+        [t for s in shards for t in s["map_things"]],
+    )

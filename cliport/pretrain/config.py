@@ -35,6 +35,10 @@ class PretrainConfig:
         lr: AdamW peak learning rate, reached after warmup_steps and decayed to 0 along a cosine.
         weight_decay: AdamW weight decay of weight matrices (not norms, biases, embeddings, the temperature).
         warmup_steps: steps of linear learning-rate warm-up.
+        dense_weight: weight of the dense objective (each pixel of whole scenes' maps against the captions of
+            their things, :mod:`cliport.pretrain.dense`) beside the contrastive loss; 0 trains without it.
+        dense_scenes: scene windows per step for the dense objective.
+        dense_scale: the scale the dense objective reads the maps at: an agent's ``similarity_scale``.
         seed: the model's initial weights and every batch.
         log_every: steps between logged rows (metrics.json).
         save_every: steps between resumable saves (state.pt, atomic).
@@ -55,6 +59,9 @@ class PretrainConfig:
     lr: float
     weight_decay: float
     warmup_steps: int
+    dense_weight: float
+    dense_scenes: int
+    dense_scale: float
     seed: int
     log_every: int
     save_every: int
@@ -68,7 +75,7 @@ class PretrainConfig:
 
         if self.device not in DEVICES:
             raise ConfigError(f"device must be one of {', '.join(DEVICES)}, got {self.device!r}")
-        for name in ("train_scenes", "probe_scenes", "steps", "batch_size", "log_every", "save_every"):
+        for name in ("train_scenes", "probe_scenes", "steps", "batch_size", "log_every", "save_every", "dense_scenes"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"{name} must be at least 1, got {getattr(self, name)}")
         for name in ("warmup_steps", "render_workers"):
@@ -82,6 +89,10 @@ class PretrainConfig:
             raise ConfigError(f"camera_scale must be positive, got {self.camera_scale}")
         if self.lr <= 0 or self.weight_decay < 0:
             raise ConfigError(f"lr must be > 0 and weight_decay >= 0, got {self.lr} and {self.weight_decay}")
+        if self.dense_weight < 0 or self.dense_scale <= 0:
+            raise ConfigError(
+                f"dense_weight must be >= 0 and dense_scale > 0, got {self.dense_weight} and {self.dense_scale}"
+            )
         check_renderer(self.renderer)
         check_model_name(self.semantic_encoder)
 

@@ -28,7 +28,7 @@ from cliport.models.encoders.clip_registry import model_config, pretrained_tags
 from cliport.models.encoders.clip_tokenizer import load_tokenizer
 from cliport.models.encoders.clip_weights import build_clip_model
 from cliport.pretrain.batches import resize_images
-from cliport.pretrain.cache import CropSet
+from cliport.pretrain.cache import CropSet, SceneMaps
 from cliport.pretrain.vocabulary import COLOR_NAMES, UNSEEN_COLORS, probe_color_caption, probe_shape_caption
 from cliport.tasks.kit_shapes import SHAPES, TEST_SHAPES
 
@@ -127,8 +127,21 @@ def check_weights_source(source: str, model_name: str) -> None:
         raise ConfigError(f"--probe {source}: not 'random', a pretrained tag of {model_name} nor an existing file")
 
 
-def probe_weights(source: str, model_name: str, crops: CropSet, device: str = "cpu") -> dict[str, Any]:
+def probe_weights(
+    source: str,
+    model_name: str,
+    crops: CropSet,
+    device: str = "cpu",
+    maps: SceneMaps | None = None,
+    scale: float = 2.0,
+) -> dict[str, Any]:
     """The probe of weights ``source`` ("random", a file, a pretrained tag) of ``model_name``, loaded as an agent
-    loads them; the result names both."""
+    loads them; the result names both. With ``maps`` (whole probe scenes), also ``dense``: their pixels' colour
+    retrieval read at ``scale`` (:func:`~cliport.pretrain.dense.dense_probe`)."""
+    from cliport.pretrain.dense import dense_probe
+
     model = build_clip_model(source, model_name).to(device)
-    return {"weights": source, "semantic_encoder": model_name, **probe_model(model, model_name, crops, device)}
+    result = {"weights": source, "semantic_encoder": model_name, **probe_model(model, model_name, crops, device)}
+    if maps is not None:
+        result["dense"] = {"scale": scale, **dense_probe(model, model_name, maps, scale, device)}
+    return result

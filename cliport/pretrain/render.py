@@ -13,8 +13,9 @@ Each object gives two crops and a scene up to :data:`MAX_RELATION_CROPS` more:
 
 A crop records every object whose centre lies in its central :data:`VISIBLE_FRACTION` (its things, for the
 captions true of it, :func:`cliport.pretrain.vocabulary.crop_facts`), and for top-down crops their world xy.
-Crops are ``crop_px`` square RGB uint8. Everything random comes from the scene's seed, so a seed renders the same
-crops with the same renderer.
+Crops are ``crop_px`` square RGB uint8. Beside its crops, a scene gives its whole top-down colour map and which
+object each of its pixels shows (:class:`SceneMap`), for the dense objective. Everything random comes from the
+scene's seed, so a seed renders the same crops and maps with the same renderer.
 """
 
 from __future__ import annotations
@@ -53,6 +54,8 @@ RELATION_WINDOW_MAX_M = 0.32
 OBLIQUE_ELEVATION_DEG = (35.0, 65.0)
 OBLIQUE_DISTANCE_M = (0.35, 0.55)
 VIEWS = ("top", "oblique")
+#: :attr:`SceneMap.labels` of the table, and of cells that show nothing or the robot (no caption is true of them).
+TABLE_LABEL, UNKNOWN_LABEL = 0, 255
 
 
 @dataclass
@@ -77,6 +80,17 @@ class Crop:
             "relation": self.relation,
             "window": self.window,
         }
+
+
+@dataclass
+class SceneMap:
+    """A scene's fused top-down colour map ``color`` (H, W, 3) uint8, as the agents see it, and ``labels``
+    (H, W) uint8: k + 1 where the oracle camera sees the scene's k-th object (``things[k]``), :data:`TABLE_LABEL`
+    on the table, :data:`UNKNOWN_LABEL` elsewhere."""
+
+    color: np.ndarray
+    labels: np.ndarray
+    things: list[list[Any]]  # [kind, noun, color] of each of the scene's objects (Thing.to_list), scene order
 
 
 def _build(env: Environment, obj: SceneObject) -> int:
@@ -180,6 +194,8 @@ class SceneRenderer:
     def __init__(self, camera_scale: float = 0.5, crop_px: int = 64, renderer: str = "auto") -> None:
         self.env = Environment(EnvConfig.defaults(camera_scale=camera_scale, renderer=renderer))
         self.env.reset(seed=0)  # the table and the robot at home; scenes only add and remove their objects
+        ids = self.env.oracle_heightmap()[1]
+        self._table = int(np.bincount(ids[ids >= 0]).argmax())  # the workspace's body fills most of the empty map
         self.crop_px = crop_px
         self.renderer_kind = self.env.renderer_kind
         self._bodies: list[int] = []
@@ -200,8 +216,9 @@ class SceneRenderer:
             p.removeBody(body, physicsClientId=self.env.client)
         self._bodies = []
 
-    def render(self, seed: int) -> list[Crop]:
-        """Every crop of scene ``seed``: top and oblique per object (scene order), then the relation crops."""
+    def render(self, seed: int) -> tuple[list[Crop], SceneMap]:
+        """Every crop of scene ``seed`` (top and oblique per object, scene order, then the relation crops) and
+        its map."""
         objects = make_scene(seed)
         self._clear()
         self._bodies = [_build(self.env, obj) for obj in objects]
@@ -225,7 +242,17 @@ class SceneRenderer:
             image = self.env.render_camera(camera)["color"]
             crops.append(self._crop(image, "oblique", seed, objects, _shown_oblique(objects, camera, i), top=False))
         crops += self._relation_crops(fused.color, seed, objects, rng)
-        return crops
+        return crops, self._scene_map(fused.color, objects)
+
+    def _scene_map(self, color: np.ndarray, objects: list[SceneObject]) -> SceneMap:
+        _, ids = self.env.oracle_heightmap()
+        if ids.shape != color.shape[:2]:
+            raise ValueError(f"the colour map {color.shape[:2]} and the object ids {ids.shape} differ")
+        labels = np.where(ids == self._table, TABLE_LABEL, UNKNOWN_LABEL).astype(np.uint8)
+        for k, body in enumerate(self._bodies):
+            labels[ids == body] = k + 1
+        things = [obj.thing.to_list() for obj in objects]
+        return SceneMap(np.ascontiguousarray(color, dtype=np.uint8), labels, things)
 
     def _crop(
         self, image: np.ndarray, view: str, seed: int, objects: list[SceneObject], shown: list[int], top: bool = True

@@ -23,9 +23,10 @@ from cliport.errors import ConfigError, RunDirError
 from cliport.models.encoders.clip_tokenizer import load_tokenizer
 from cliport.models.encoders.clip_weights import create_clip_model
 from cliport.pretrain.batches import CaptionedCrops
-from cliport.pretrain.cache import load_crops, render_cache
+from cliport.pretrain.cache import load_crops, load_scene_maps, render_cache
 from cliport.pretrain.checkpoint import RECORD_FILE, STATE_FILE, load_state, save_open_clip, state_tensors
 from cliport.pretrain.config import PretrainConfig
+from cliport.pretrain.dense import SceneBatch, dense_loss, pixel_logits, step_scene_batch
 from cliport.pretrain.loss import MAX_LOGIT_SCALE, contrastive_loss, retrieval_accuracy
 from cliport.pretrain.probe import image_size, normalise, probe_weights
 from cliport.utils.files import read_json, save_torch, write_json
@@ -96,14 +97,30 @@ class TextEncoder:
 
 
 def train_step(
-    model: Any, text: TextEncoder, batch: Any, optimizer: torch.optim.Optimizer, device: str
+    model: Any,
+    text: TextEncoder,
+    batch: Any,
+    optimizer: torch.optim.Optimizer,
+    device: str,
+    scenes: SceneBatch | None = None,
+    dense_weight: float = 0.0,
 ) -> dict[str, float]:
-    """One optimiser step on ``batch`` (:class:`~cliport.pretrain.batches.Batch`); its loss and in-batch accuracy."""
+    """One optimiser step on ``batch`` (:class:`~cliport.pretrain.batches.Batch`), and with ``scenes`` the dense
+    objective weighted ``dense_weight``; its losses and in-batch accuracy."""
     images = normalise(model, batch.images.to(device))
     image_features = model.encode_image(images, normalize=True)
     text_features = text(batch.captions)
     positives = batch.positives.to(device)
     loss = contrastive_loss(image_features, text_features, model.logit_scale, positives)
+    logged: dict[str, float] = {}
+    if scenes is not None:
+        labels = scenes.labels.to(device)
+        size = (labels.shape[-2], labels.shape[-1])
+        images = normalise(model, scenes.images.to(device))
+        logits = pixel_logits(model.visual, images, text(scenes.captions), model.logit_scale, size)
+        dense = dense_loss(logits, labels, scenes.positives.to(device))
+        loss = loss + dense_weight * dense
+        logged["dense_loss"] = float(dense.detach())
     optimizer.zero_grad(set_to_none=True)
     loss.backward()
     optimizer.step()
@@ -111,7 +128,7 @@ def train_step(
         model.logit_scale.clamp_(0, MAX_LOGIT_SCALE)
         accuracy = retrieval_accuracy(image_features, text_features, positives)
         scale = float(model.logit_scale.exp())
-    return {"loss": float(loss.detach()), "accuracy": accuracy, "logit_scale": scale}
+    return {"loss": float(loss.detach()), **logged, "accuracy": accuracy, "logit_scale": scale}
 
 
 def pretrain(config: PretrainConfig, progress: bool = True, probe: bool = True) -> dict[str, Any]:
@@ -135,6 +152,7 @@ def pretrain(config: PretrainConfig, progress: bool = True, probe: bool = True) 
     render_s = time.perf_counter() - start
     train_crops = load_crops(config.cache_dir, "train", config.train_scenes)
     crops = CaptionedCrops(train_crops, image_size(config.semantic_encoder))
+    maps = load_scene_maps(config.cache_dir, "train", config.train_scenes) if config.dense_weight > 0 else None
     model = create_clip_model(config.semantic_encoder, config.seed).to(device)
     optimizer = make_optimizer(model, config)
     state_path = os.path.join(config.out_dir, STATE_FILE)
@@ -162,7 +180,11 @@ def pretrain(config: PretrainConfig, progress: bool = True, probe: bool = True) 
         while step < config.steps:
             for group in optimizer.param_groups:
                 group["lr"] = learning_rate(config, step)
-            logged = train_step(model, text, crops.step_batch(config.seed, step, config.batch_size), optimizer, device)
+            batch = crops.step_batch(config.seed, step, config.batch_size)
+            scenes = None
+            if maps is not None:
+                scenes = step_scene_batch(maps, config.seed, step, config.dense_scenes, config.dense_scale)
+            logged = train_step(model, text, batch, optimizer, device, scenes, config.dense_weight)
             step += 1
             bar.update(1)
             if step % config.log_every == 0 or step == config.steps:
@@ -188,10 +210,11 @@ def pretrain(config: PretrainConfig, progress: bool = True, probe: bool = True) 
     }
     if probe:
         probe_crops = load_crops(config.cache_dir, "probe", config.probe_scenes)
+        probe_maps = load_scene_maps(config.cache_dir, "probe", config.probe_scenes)
         mark = time.perf_counter()
         record["probe"] = {
-            "random": probe_weights("random", config.semantic_encoder, probe_crops, device),
-            "pretrained": probe_weights(weights, config.semantic_encoder, probe_crops, device),
+            which: probe_weights(source, config.semantic_encoder, probe_crops, device, probe_maps, config.dense_scale)
+            for which, source in (("random", "random"), ("pretrained", weights))
         }
         record["seconds"]["probe"] = round(time.perf_counter() - mark, 1)
     record["seconds"]["total"] = round(time.perf_counter() - start, 1)
@@ -210,8 +233,16 @@ def summary_lines(record: dict[str, Any]) -> list[str]:
         for key in ("colors", "shapes"):
             r = result[key]
             parts.append(f"{key} seen {_pct(r['seen'])}, unseen {_pct(r['unseen'])} (chance {100 * r['chance']:.0f} %)")
+        if "dense" in result:
+            for noun in ("blocks", "bowls"):
+                r = result["dense"][noun]
+                parts.append(f"{noun}' pixels seen {_share(r['seen'])}, unseen {_share(r['unseen'])}")
         lines.append(f"probe, {which} weights: " + "; ".join(parts))
     return lines
+
+
+def _share(score: dict[str, Any]) -> str:
+    return "n/a" if score["share"] is None else f"{100 * score['share']:.0f} %"
 
 
 def _pct(score: dict[str, Any]) -> str:

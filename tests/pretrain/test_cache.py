@@ -9,7 +9,7 @@ import pytest
 
 from cliport.errors import ConfigError
 from cliport.pretrain import cache
-from cliport.pretrain.cache import PROBE_FIRST_SEED, load_crops, render_cache
+from cliport.pretrain.cache import PROBE_FIRST_SEED, load_crops, load_scene_maps, render_cache
 
 
 def test_render_once_then_only_what_is_missing(tmp_path, monkeypatch) -> None:
@@ -26,6 +26,10 @@ def test_render_once_then_only_what_is_missing(tmp_path, monkeypatch) -> None:
     assert [m["seed"] for m in train.meta] == sorted(m["seed"] for m in train.meta)
     assert {m["seed"] for m in train.meta} == {0, 1, 2} and {m["seed"] for m in probe.meta} == {PROBE_FIRST_SEED}
     assert train.images.shape == (len(train), 64, 64, 3) and train.images.dtype == np.uint8
+    maps = load_scene_maps(folder, "train", 3)
+    assert maps.color.shape == (3, 320, 160, 3) and maps.labels.shape == (3, 320, 160) and len(maps) == 3
+    for labels, things in zip(maps.labels, maps.things, strict=True):  # objects never overlap: each is seen
+        assert set(np.unique(labels)) - {255} == set(range(len(things) + 1))
     assert not [p for p in os.listdir(os.path.join(folder, "train")) if p.endswith(".tmp")]
 
 

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cliport.pretrain.render import SceneRenderer
+from cliport.env.heightmap import BOUNDS, PIXEL_SIZE, heightmap_shape
+from cliport.pretrain.render import TABLE_LABEL, SceneRenderer
 from cliport.pretrain.scenes import make_scene
 from cliport.pretrain.vocabulary import relation_of
 from cliport.tasks.colors import COLORS
@@ -18,10 +19,11 @@ def renderer() -> SceneRenderer:
 
 
 def test_rendering_is_deterministic_per_seed(renderer: SceneRenderer) -> None:
-    first, other, again = renderer.render(3), renderer.render(4), renderer.render(3)
+    (first, first_map), (other, _), (again, again_map) = renderer.render(3), renderer.render(4), renderer.render(3)
     assert [c.meta() for c in first] == [c.meta() for c in again]
     assert all(np.array_equal(a.image, b.image) for a, b in zip(first, again, strict=True))
     assert not np.array_equal(first[0].image, other[0].image)
+    assert np.array_equal(first_map.color, again_map.color) and np.array_equal(first_map.labels, again_map.labels)
 
 
 def test_crops_show_their_subject(renderer: SceneRenderer) -> None:
@@ -29,7 +31,7 @@ def test_crops_show_their_subject(renderer: SceneRenderer) -> None:
     the middle; a relation crop's relation holds between its two objects' positions."""
     checked = 0
     for seed in range(4):
-        objects, crops = make_scene(seed), renderer.render(seed)
+        objects, (crops, _) = make_scene(seed), renderer.render(seed)
         assert len(crops) >= 2 * len(objects)
         for i, obj in enumerate(objects):
             top, oblique = crops[2 * i], crops[2 * i + 1]
@@ -48,3 +50,22 @@ def test_crops_show_their_subject(renderer: SceneRenderer) -> None:
             i, relation, j = crop.relation
             assert crop.positions is not None and relation_of(crop.positions[i], crop.positions[j]) == relation
     assert checked >= 2
+
+
+def test_a_scene_map_labels_each_object_where_it_lies(renderer: SceneRenderer) -> None:
+    """The map's labels name each object at its centre (rows along y, columns along x), the rest is table, and a
+    block's labelled pixels are its colour; a 4 cm block covers about 13 x 13 cells of 3.125 mm."""
+    for seed in range(3):
+        objects, (_, scene_map) = make_scene(seed), renderer.render(seed)
+        assert scene_map.things == [o.thing.to_list() for o in objects]
+        assert scene_map.color.shape[:2] == scene_map.labels.shape == heightmap_shape()
+        for k, obj in enumerate(objects):
+            mask = scene_map.labels == k + 1
+            row = int((obj.xyz[1] - BOUNDS[1, 0]) / PIXEL_SIZE)
+            col = int((obj.xyz[0] - BOUNDS[0, 0]) / PIXEL_SIZE)
+            if obj.thing.kind == "block":
+                assert scene_map.labels[row, col] == k + 1
+                assert 100 <= mask.sum() <= 260, mask.sum()
+                median = np.median(scene_map.color[mask].astype(float), 0)
+                assert np.linalg.norm(median - np.asarray(COLORS[obj.thing.color], float)) < 60
+        assert (scene_map.labels == TABLE_LABEL).mean() > 0.5
