@@ -130,15 +130,26 @@ def reference_utils(reference_dir: str):
     return call
 
 
+#: The semantic encoder of the tiny agents' CLIP stream (tiny_config).
+TINY_CLIP = "cliport-RN-tiny"
+
+
 @pytest.fixture(scope="session")
 def tiny_config():
     """``tiny_config(agent, **overrides)``: settings of a tiny agent (an eighth of the published width, 32-pixel
-    crops, 8 rotations, random pretrained weights) for fast CPU tests."""
+    crops, 8 rotations, random pretrained weights; where the agent has a CLIP semantic stream, the tiny CLIP
+    ``cliport-RN-tiny``: a frozen RN50 costs most of a tiny agent's step) for fast CPU tests. Tests of CLIPort's
+    own nets (shapes, parity, weights files) name ``semantic_encoder="RN50-quickgelu"``."""
+    from dataclasses import fields
+
     from cliport.agents import agent_class
 
     def config(agent: str, **overrides: object) -> dict[str, object]:
-        base = {"width": 0.125, "crop_size": 32, "n_rotations": 8}
-        return {**base, **dict.fromkeys(agent_class(agent).weight_sources, "random"), **overrides}
+        cls = agent_class(agent)
+        base: dict[str, object] = {"width": 0.125, "crop_size": 32, "n_rotations": 8}
+        if "semantic_encoder" in {f.name for f in fields(cls.config_class)}:
+            base["semantic_encoder"] = TINY_CLIP
+        return {**base, **dict.fromkeys(cls.weight_sources, "random"), **overrides}
 
     return config
 

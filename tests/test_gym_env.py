@@ -96,27 +96,26 @@ def test_truncated_at_the_step_limit(env) -> None:
 
 
 GOOD = ((0.5, 0.0, 0.05), (0, 0, 0, 1))
+MALFORMED = [
+    (None, "action must be a dict with 'pose0' and 'pose1', got NoneType"),
+    ({"pose0": GOOD}, "action is missing 'pose1'"),
+    ({"pose0": ((0.5, 0, 0.05), (0, 0, 1)), "pose1": GOOD}, "pose0 quaternion must have 4 values"),
+    ({"pose0": GOOD, "pose1": np.zeros(7)}, "pose1 must be a pair (xyz, quat_xyzw)"),
+    ({"pose0": ((0.5, 0, np.nan), (0, 0, 0, 1)), "pose1": GOOD}, "pose0 contains NaN"),
+    ({"pose0": GOOD, "pose1": ((2.0, 0, 0.05), (0, 0, 0, 1))}, "pose1 x=2.000 is outside the workspace"),
+    ({"pose0": (("a", 0, 0), (0, 0, 0, 1)), "pose1": GOOD}, "pose0 must be a pair"),
+]
 
 
-@pytest.mark.parametrize(
-    "action, message",
-    [
-        (None, "action must be a dict with 'pose0' and 'pose1', got NoneType"),
-        ({"pose0": GOOD}, "action is missing 'pose1'"),
-        ({"pose0": ((0.5, 0, 0.05), (0, 0, 1)), "pose1": GOOD}, "pose0 quaternion must have 4 values"),
-        ({"pose0": GOOD, "pose1": np.zeros(7)}, "pose1 must be a pair (xyz, quat_xyzw)"),
-        ({"pose0": ((0.5, 0, np.nan), (0, 0, 0, 1)), "pose1": GOOD}, "pose0 contains NaN"),
-        ({"pose0": GOOD, "pose1": ((2.0, 0, 0.05), (0, 0, 0, 1))}, "pose1 x=2.000 is outside the workspace"),
-        ({"pose0": (("a", 0, 0), (0, 0, 0, 1)), "pose1": GOOD}, "pose0 must be a pair"),
-    ],
-)
-def test_malformed_action_is_a_clear_error_before_the_simulator_moves(env, action, message) -> None:
+def test_malformed_actions_are_clear_errors_before_the_simulator_moves(env) -> None:
+    """Each malformed action in turn, in one episode: a clear error, nothing executed; then the episode goes on."""
     env.reset(seed=10001)
-    with pytest.raises(ActionError) as error:
-        env.step(action)
-    assert message in str(error.value)
-    assert env.unwrapped.sim.steps == 0  # nothing was executed
-    _, _, _, _, info = env.step(env.unwrapped.oracle_action())  # the episode goes on
+    for action, message in MALFORMED:
+        with pytest.raises(ActionError) as error:
+            env.step(action)
+        assert message in str(error.value)
+        assert env.unwrapped.sim.steps == 0, message  # nothing was executed
+    _, _, _, _, info = env.step(env.unwrapped.oracle_action())
     assert info["steps"] == 1
 
 

@@ -17,7 +17,7 @@ TEXTS = [f"put the {a} block in the {b} bowl" for a in COLOURS for b in COLOURS 
 @pytest.fixture(scope="module")
 def centred(tiny_config):
     torch.manual_seed(0)
-    return make_agent("two_stream", tiny_config("two_stream", center_sentences=True))
+    return make_agent("two_stream", tiny_config("two_stream", center_sentences=True, semantic_encoder="RN50-quickgelu"))
 
 
 def test_unfitted_centring_is_refused_and_fitting_centres_and_keeps_the_norm(centred) -> None:

@@ -109,6 +109,12 @@ def tiny_run(tmp_path_factory, sim_scene, tiny_config):
     return make_run(str(tmp_path_factory.mktemp("run")), config, sharpen_on=sim_scene[0])
 
 
+@pytest.fixture(scope="session")
+def untrained_run(tmp_path_factory, tiny_config):
+    """The run ``tiny_run`` is, before its training: for what is decided before the agent predicts."""
+    return make_run(str(tmp_path_factory.mktemp("untrained-run")), tiny_config("transporter_only", n_rotations=4))
+
+
 @pytest.fixture
 def scene_files():
     """:func:`write_scene`: (obs, cameras, folder, png_scale=None) -> {"rgb", "depth", "cameras"} paths."""

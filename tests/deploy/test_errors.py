@@ -31,6 +31,12 @@ def files(sim_scene, tmp_path_factory):
     return paths
 
 
+@pytest.fixture(scope="module")
+def tiny_run(untrained_run):
+    """Every error here is found before the agent predicts: the run needs no training."""
+    return untrained_run
+
+
 @pytest.fixture
 def predict_error(capsys, one_error_line):
     """``predict_error(argv)``: cliport-predict's one ``error:`` line (exit status 2) for ``argv``."""

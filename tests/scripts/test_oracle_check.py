@@ -1,16 +1,27 @@
+"""scripts/oracle_check.py and oracle_table.py: episodes, records that resume, the tables; bad input in one line.
+Most calls run the scripts in this process (``run_script``); the bad task starts oracle_check.py as a process."""
+
 import json
 import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "oracle_check.py"
 
 
-def _run(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, str(SCRIPT), *args], capture_output=True, text=True, timeout=600)
+@pytest.fixture
+def _run(run_script):
+    return lambda *args: run_script("oracle_check.py", *args)
 
 
-def test_two_workers_report_the_protocol_seeds():
+@pytest.fixture
+def _table(run_script):
+    return lambda *args: run_script("oracle_table.py", *args)
+
+
+def test_two_workers_report_the_protocol_seeds(_run):
     out = _run("--task", "place-red-in-green", "--episodes", "2", "--workers", "2", "--camera-scale", "0.5")
     assert out.returncode == 0, out.stderr
     result = json.loads(out.stdout.strip().splitlines()[-1])
@@ -19,15 +30,15 @@ def test_two_workers_report_the_protocol_seeds():
     assert result["mean_reward"] > 0.99 and result["seconds_per_episode"] > 0
 
 
-def test_chosen_seeds_and_bad_task(one_error_line):
+def test_chosen_seeds_and_bad_task(_run, one_error_line):
     out = _run("--task", "block-insertion", "--seeds", "4", "--camera-scale", "0.5")
     assert out.returncode == 0, out.stderr
     assert json.loads(out.stdout)["episodes"] == 1
-    bad = _run("--task", "no-such-task")
+    bad = subprocess.run([sys.executable, str(SCRIPT), "--task", "no-such-task"], capture_output=True, text=True)
     one_error_line(bad.returncode, bad.stderr, "no-such-task")
 
 
-def test_bad_worker_counts_are_one_clear_line(one_error_line):
+def test_bad_worker_counts_are_one_clear_line(_run, one_error_line):
     for args, message in [
         (["--workers", "0"], "--workers must be >= 1, got 0"),
         (["--workers", "3", "--episodes", "2"], "--workers 3 is more than the 2 episode(s) to run"),
@@ -36,14 +47,7 @@ def test_bad_worker_counts_are_one_clear_line(one_error_line):
         one_error_line(out.returncode, out.stderr, message)
 
 
-TABLE = SCRIPT.parent / "oracle_table.py"
-
-
-def _table(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, str(TABLE), *args], capture_output=True, text=True, timeout=120)
-
-
-def test_record_dir_resumes_and_survives_a_torn_line(tmp_path, one_error_line):
+def test_record_dir_resumes_and_survives_a_torn_line(tmp_path, _run, _table, one_error_line):
     records = tmp_path / "oracle"
     first = _run("--task", "block-insertion", "--episodes", "2", "--camera-scale", "0.5", "--record-dir", str(records))
     assert first.returncode == 0, first.stderr
@@ -77,7 +81,7 @@ def test_record_dir_resumes_and_survives_a_torn_line(tmp_path, one_error_line):
     assert "old" not in text and "| block-insertion" in text
 
 
-def test_blind_records_apart_from_the_oracle_and_its_table(tmp_path, one_error_line):
+def test_blind_records_apart_from_the_oracle_and_its_table(tmp_path, _run, _table, one_error_line):
     records = tmp_path / "blind"
     task = "put-block-in-bowl-seen-colors"
     args = ("--task", task, "--episodes", "2", "--mode", "test", "--camera-scale", "0.5", "--record-dir", str(records))

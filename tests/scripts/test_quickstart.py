@@ -41,19 +41,26 @@ def test_a_tiny_run_goes_through_every_phase_and_resumes(tmp_path, one_error_lin
 
 
 def test_bad_settings_are_one_line(tmp_path, one_error_line):
-    out = _run("--out", str(tmp_path), "--steps", "0")
+    out = _run("--out", str(tmp_path), "--steps", "0")  # the script's own exit: one line, status 2
     one_error_line(out.returncode, out.stderr, "--steps must be at least 1, got 0", status=2)
-    out = _run("--out", str(tmp_path), "--task", "nope")
-    one_error_line(out.returncode, out.stderr, "unknown task 'nope'", status=2)
-    out = _run("--out", str(tmp_path), "--language", "--minutes", "-1")
-    one_error_line(out.returncode, out.stderr, "--minutes must be at least 0, got -1.0", status=2)
-    out = _run("--out", str(tmp_path), "--language", "--check-start", "-1")
-    one_error_line(out.returncode, out.stderr, "--check-start must be at least 0, got -1", status=2)
-    out = _run("--out", str(tmp_path), "--language", "--lr-cooldown", "2")
-    one_error_line(
-        out.returncode, out.stderr, "--lr-cooldown is a fraction of the training, from 0 to 1, got 2.0", status=2
-    )
     assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize(
+    "flags, message",
+    [
+        (["--task", "nope"], "unknown task 'nope'"),
+        (["--language", "--minutes", "-1"], "--minutes must be at least 0, got -1.0"),
+        (["--language", "--check-start", "-1"], "--check-start must be at least 0, got -1"),
+        (["--language", "--lr-cooldown", "2"], "--lr-cooldown is a fraction of the training, from 0 to 1, got 2.0"),
+    ],
+)
+def test_bad_settings_are_refused_before_anything_runs(flags, message):
+    from cliport.errors import UserError
+
+    with pytest.raises(UserError) as raised:
+        _quickstart_module().parse_args("cpu", flags)
+    assert message in str(raised.value)
 
 
 @pytest.mark.e2e

@@ -41,7 +41,9 @@ def _kill_key_semantic(agent) -> None:
 def agent_factory(tiny_config):
     def make():
         torch.manual_seed(2)  # a live draw (0 and 1 draw a dead key semantic stream)
-        return make_agent("two_stream", tiny_config("two_stream", crop_size=64, n_rotations=1)).train()
+        return make_agent(
+            "two_stream", tiny_config("two_stream", crop_size=64, n_rotations=1, semantic_encoder="RN50-quickgelu")
+        ).train()
 
     return make
 
