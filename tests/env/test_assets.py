@@ -85,7 +85,8 @@ _POOL_SCRIPT = textwrap.dedent(
     def hold(queue):
         generate.init_worker("place-red-in-green", "train", 0.5)
         queue.put(generate._ENV.asset_dir)
-        time.sleep(60)
+        for _ in range(600):  # short sleeps: a SIGTERM the kernel hands to the queue's feeder thread is handled
+            time.sleep(0.1)  # when the main thread next runs Python (once measured: 60 s, after one long sleep)
 
     if __name__ == "__main__" and sys.argv[1] == "terminate":
         ctx = mp.get_context("spawn")
