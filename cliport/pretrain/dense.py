@@ -29,6 +29,7 @@ import torch
 import torch.nn.functional as F
 
 from cliport.models.encoders.base import TRUNK_STRIDES
+from cliport.models.encoders.clip_encoder import trunk_levels
 from cliport.models.encoders.dense_clip import dense_embeddings
 from cliport.pretrain.cache import SceneMaps
 from cliport.pretrain.render import TABLE_LABEL, UNKNOWN_LABEL
@@ -115,23 +116,12 @@ def step_scene_batch(maps: SceneMaps, seed: int, step: int, scenes: int, scale: 
     return scene_batch(maps, indices, rng, scale)
 
 
-def last_level(visual: Any, images: torch.Tensor) -> torch.Tensor:
-    """Normalised images (N, 3, H, W) -> the image tower's last trunk level (N, C, H/32, W/32)."""
-    from open_clip.transformer import VisionTransformer
-
-    from cliport.models.encoders.clip_vit import vit_block_indices, vit_levels
-
-    if isinstance(visual, VisionTransformer):
-        return vit_levels(visual, vit_block_indices(len(visual.transformer.resblocks)), images)[-1]
-    return visual.forward_intermediates(images, intermediates_only=True)["image_intermediates"][-1]
-
-
 def pixel_logits(
     visual: Any, images: torch.Tensor, texts: torch.Tensor, logit_scale: torch.Tensor, size: tuple[int, int]
 ) -> torch.Tensor:
     """Normalised images (N, 3, H, W) and L2-normalised texts (K, E) -> each position's scaled cosine with each
     text, resized bilinearly to ``size`` (N, K, *size)."""
-    dense = F.normalize(dense_embeddings(visual, last_level(visual, images)), dim=1)
+    dense = F.normalize(dense_embeddings(visual, trunk_levels(visual, images)[-1]), dim=1)
     logits = logit_scale.exp() * torch.einsum("nehw,ke->nkhw", dense, texts)
     return F.interpolate(logits, size=size, mode="bilinear", align_corners=False)
 
@@ -158,38 +148,34 @@ def dense_probe(
     colours apart. Returns ``{"blocks": {"seen": {"share", "pixels", "objects"}, "unseen": ...}, "bowls": ...}``."""
     from cliport.pretrain.probe import embed_texts, normalise
 
+    nouns = ("block", "bowl")
+    rows, cols = maps.labels.shape[1:]
+    size = [max(_CELL * 2, round(side * scale / (2 * _CELL)) * 2 * _CELL) for side in (rows, cols)]
+    tally = {(noun, part): [0, 0, 0] for noun in nouns for part in ("seen", "unseen")}  # right, pixels, objects
     was_training = model.training
     model.eval()
-    hits = {(noun, part): [0, 0, 0] for noun in ("block", "bowl") for part in ("seen", "unseen")}
     try:
-        captions = {
-            noun: embed_texts(model, model_name, [probe_color_caption(c, noun) for c in COLOR_NAMES], device)
-            for noun in ("block", "bowl")
-        }
-        rows, cols = maps.labels.shape[1:]
-        size = [max(_CELL * 2, round(side * scale / (2 * _CELL)) * 2 * _CELL) for side in (rows, cols)]
+        captions = [probe_color_caption(color, noun) for noun in nouns for color in COLOR_NAMES]
+        texts = embed_texts(model, model_name, captions, device)  # (nouns * colours, E)
         for start in range(0, len(maps), chunk):
             rgb = torch.from_numpy(maps.color[start : start + chunk]).permute(0, 3, 1, 2).float().to(device) / 255
             rgb = normalise(model, F.interpolate(rgb, size=size, mode="bilinear", align_corners=False))
-            for noun, texts in captions.items():
-                best = pixel_logits(model.visual, rgb, texts.to(device), torch.zeros(()), (rows, cols)).argmax(1)
-                for i in range(best.shape[0]):
-                    scene = start + i
-                    for k, (kind, _, color) in enumerate(maps.things[scene]):
-                        mask = torch.from_numpy(maps.labels[scene] == k + 1)
-                        if kind != noun or not mask.any():
-                            continue
-                        tally = hits[(noun, "unseen" if color in UNSEEN_COLORS else "seen")]
-                        tally[0] += int((best[i].cpu()[mask] == COLOR_NAMES.index(color)).sum())
-                        tally[1] += int(mask.sum())
-                        tally[2] += 1
+            logits = pixel_logits(model.visual, rgb, texts.to(device), torch.zeros(()), (rows, cols)).cpu()
+            best = logits.unflatten(1, (len(nouns), len(COLOR_NAMES))).argmax(2)  # (N, nouns, H, W)
+            for i, things in enumerate(maps.things[start : start + chunk]):
+                labels = torch.from_numpy(maps.labels[start + i])
+                for k, (kind, _, color) in enumerate(things):
+                    mask = labels == k + 1
+                    if kind not in nouns or not mask.any():
+                        continue
+                    counts = tally[(kind, "unseen" if color in UNSEEN_COLORS else "seen")]
+                    counts[0] += int((best[i, nouns.index(kind)][mask] == COLOR_NAMES.index(color)).sum())
+                    counts[1] += int(mask.sum())
+                    counts[2] += 1
     finally:
         model.train(was_training)
-    return {
-        f"{noun}s": {
-            part: {"share": round(h / n, 4) if n else None, "pixels": n, "objects": k}
-            for (n_, part), (h, n, k) in hits.items()
-            if n_ == noun
-        }
-        for noun in ("block", "bowl")
-    }
+    return {f"{noun}s": {part: _share(*tally[(noun, part)]) for part in ("seen", "unseen")} for noun in nouns}
+
+
+def _share(right: int, pixels: int, objects: int) -> dict[str, Any]:
+    return {"share": round(right / pixels, 4) if pixels else None, "pixels": pixels, "objects": objects}

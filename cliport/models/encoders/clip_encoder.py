@@ -51,6 +51,19 @@ def _trunk_channels(visual: nn.Module) -> tuple[int, int, int, int, int]:
     raise UnsupportedEncoderError(f"no trunk adapter for the image tower {type(visual).__name__}")
 
 
+def trunk_levels(
+    visual: Any, images: torch.Tensor, vit_blocks: tuple[int, int, int, int] | None = None
+) -> list[torch.Tensor]:
+    """An open_clip image tower's five trunk levels from normalised images (N, 3, H, W), strides 4, 4, 8, 16, 32:
+    a ModifiedResNet's stem and layer1..4, or a ViT's :func:`~cliport.models.encoders.clip_vit.vit_levels` of
+    ``vit_blocks`` (default: :func:`~cliport.models.encoders.clip_vit.vit_block_indices` of its depth)."""
+    from open_clip.transformer import VisionTransformer
+
+    if isinstance(visual, VisionTransformer):
+        return vit_levels(visual, vit_blocks or vit_block_indices(len(visual.transformer.resblocks)), images)
+    return visual.forward_intermediates(images, intermediates_only=True)["image_intermediates"]
+
+
 def _sentence_dim(model: nn.Module) -> int | None:
     """Width of ``encode_text``'s output read from the text tower's modules (None: not readable)."""
     projection = getattr(model, "text_projection", None)
@@ -127,9 +140,7 @@ class FrozenCLIP(FrozenEncoder):
 
     def _trunk(self, rgb: torch.Tensor) -> list[torch.Tensor]:
         x = ((rgb - self.mean) / self.std).to(self.image_dtype())
-        if self.vit_blocks is not None:
-            return vit_levels(self.model.visual, self.vit_blocks, x)
-        return self.model.visual.forward_intermediates(x, intermediates_only=True)["image_intermediates"]
+        return trunk_levels(self.model.visual, x, self.vit_blocks)
 
     def dense_embeddings(self, layer4: torch.Tensor) -> torch.Tensor:
         with torch.no_grad():
