@@ -15,7 +15,7 @@ a block and a bowl caption of each bank colour, e.g. the seen palette, the words
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from typing import Any
 
 import numpy as np
@@ -25,7 +25,7 @@ import torch.nn.functional as F
 from cliport.evaluation.instruction_following import lesson_task
 from cliport.models.encoders.base import TRUNK_STRIDES
 from cliport.models.encoders.clip_encoder import FrozenCLIP
-from cliport.models.encoders.dense_clip import bank_probability, similarity_map
+from cliport.models.encoders.dense_clip import bank_probability, instruction_phrases, similarity_map
 from cliport.pretrain.vocabulary import UNSEEN_COLORS, probe_color_caption
 
 STRIDE = TRUNK_STRIDES[-1]  # the trunk's last level: the image is padded to a multiple of it
@@ -81,10 +81,49 @@ def dense_retrieval(
 ) -> dict[str, Any]:
     """Each scene of ``seeds``: every block colour captioned and looked for (module docstring). Returns
     ``{"seen": {"found", "n", "rate"}, "unseen": {...}, "scenes": n, "scale": scale, "records": [...]}``."""
+    bank = [probe_color_caption(c, noun) for c in bank_colors for noun in ("block", "bowl")]
+
+    def maps(obs: dict[str, np.ndarray], task: Any, names: list[str]) -> torch.Tensor:
+        return caption_maps(encoder, obs["color"], [probe_color_caption(name) for name in names], scale, bank)
+
+    report = _retrieval(task_name, seeds, camera_scale, mode, maps)
+    return {**report, "scale": scale, "bank": sorted(set(bank_colors))}
+
+
+def agent_retrieval(
+    agent: Any, task_name: str, seeds: Iterable[int], camera_scale: float = 1.0, mode: str = "test"
+) -> dict[str, Any]:
+    """Dense retrieval through an agent's own maps (a two_stream agent with ``similarity_maps``): for each block of
+    each scene, the map of the phrase naming it ("the pink block") that the pick net reads
+    (``agent.similarity_heatmaps``) for the scene's instruction with that block put in; found as in
+    :func:`dense_retrieval`. Same report, without ``scale`` and ``bank``."""
+
+    def maps(obs: dict[str, np.ndarray], task: Any, names: list[str]) -> torch.Tensor:
+        out = []
+        for name in names:
+            instruction = task.instruction_for(name, task.goal_bowl)
+            heatmaps = agent.similarity_heatmaps(obs, instruction)
+            phrase = next((p for p in instruction_phrases(instruction) if name in p.split()), None)
+            if phrase not in heatmaps:
+                raise ValueError(f"{agent.name} has no similarity map of a phrase naming the {name} block")
+            out.append(torch.from_numpy(heatmaps[phrase]).float())
+        return torch.stack(out)
+
+    return _retrieval(task_name, seeds, camera_scale, mode, maps)
+
+
+def _retrieval(
+    task_name: str,
+    seeds: Iterable[int],
+    camera_scale: float,
+    mode: str,
+    maps: Callable[[dict[str, np.ndarray], Any, list[str]], torch.Tensor],
+) -> dict[str, Any]:
+    """Each scene of ``seeds``: ``maps(obs, task, block names)`` (C, H, W) scored per block (:func:`found`),
+    counted seen and unseen apart."""
     from cliport.env.environment import EnvConfig, Environment
 
     task = lesson_task(task_name, mode, "dense retrieval")
-    bank = [probe_color_caption(c, noun) for c in bank_colors for noun in ("block", "bowl")]
     records: list[dict[str, Any]] = []
     with Environment(EnvConfig.defaults(camera_scale=camera_scale), task=task) as env:
         for seed in seeds:
@@ -94,8 +133,7 @@ def dense_retrieval(
                 raise ValueError(f"the colour map {obs['color'].shape[:2]} and the object ids {ids.shape} differ")
             masks = {name: ids == body for name, body in task.block_colors.items()}
             masks = {name: mask for name, mask in masks.items() if mask.any()}  # a block the camera cannot see
-            captions = [probe_color_caption(name) for name in masks]
-            scores = block_scores(caption_maps(encoder, obs["color"], captions, scale, bank), masks)
+            scores = block_scores(maps(obs, task, list(masks)), masks)
             for name, ok in found(scores).items():
                 records.append({"seed": int(seed), "color": name, "unseen": name in UNSEEN_COLORS, "found": ok})
     out: dict[str, Any] = {}
@@ -103,5 +141,4 @@ def dense_retrieval(
         rows = [r for r in records if r["unseen"] is unseen]
         hits = sum(r["found"] for r in rows)
         out[part] = {"found": hits, "n": len(rows), "rate": round(hits / len(rows), 4) if rows else None}
-    scenes = len({r["seed"] for r in records})
-    return {**out, "scenes": scenes, "scale": scale, "bank": sorted(set(bank_colors)), "records": records}
+    return {**out, "scenes": len({r["seed"] for r in records}), "records": records}

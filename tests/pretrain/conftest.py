@@ -34,7 +34,7 @@ def tiny_cache(tmp_path_factory: pytest.TempPathFactory) -> str:
     return folder
 
 
-@pytest.fixture
+@pytest.fixture(scope="session")
 def tiny_config() -> Callable[..., PretrainConfig]:
     """``tiny_config(out_dir, cache_dir, **overrides)``: settings of cliport-RN-tiny on the tiny cache, a few steps
     of a small batch."""
