@@ -34,7 +34,7 @@ from typing import Any
 import torch
 
 from cliport import tasks
-from cliport.agents import agent_class, agent_names, load_agent, make_config
+from cliport.agents import agent_class, agent_names, load_agent
 from cliport.agents.registry import config_classes
 from cliport.cli.common import OneLineParser, run_cli
 from cliport.data.generate import DemoConfig, generate
@@ -49,11 +49,12 @@ from cliport.evaluation.instruction_following import (
     two_instructions_figure,
 )
 from cliport.pretrain.transfer import colour_report
-from cliport.train.config import TrainConfig, default_place_rotations, load_run_config
+from cliport.train.config import TrainConfig, load_run_config
 from cliport.train.recipes import recipe_names
+from cliport.train.run_defaults import run_defaults
 from cliport.train.step_timing import step_seconds
 from cliport.train.trainer import train
-from cliport.utils.config import add_flags, device_defaults, given_flags
+from cliport.utils.config import add_flags, device_defaults, given_flags, merge
 from cliport.utils.files import read_json, write_json
 from cliport.utils.machine import measurement_environment
 from cliport.utils.run_dir import RunDir
@@ -232,16 +233,10 @@ def resolve_clip_weights(args: Any) -> str | None:
     return "random"
 
 
-def place_rotations(args: Any) -> int:
-    """--n-rotations, else :func:`~cliport.train.config.default_place_rotations`: 1 where the task's place yaw
-    says nothing (round bowls), else the agent's (the papers' 36)."""
-    return int(args.n_rotations or default_place_rotations(args.task) or make_config(args.agent).n_rotations)
-
-
-def train_config(
-    args: Any, data_dir: str, run_dir: str, n_rotations: int, clip: str | None, check_saved: bool = True
-) -> TrainConfig:
-    agent_config: dict[str, Any] = {"width": args.width, "n_rotations": n_rotations, "map_scale": args.map_scale}
+def train_config(args: Any, data_dir: str, run_dir: str, clip: str | None, check_saved: bool = True) -> TrainConfig:
+    """The run's config: the quickstart's settings, with the place rotations and renderer of
+    :func:`~cliport.train.run_defaults.run_defaults` (as cliport-train resolves them; ``--n-rotations`` wins)."""
+    agent_config: dict[str, Any] = {"width": args.width, "map_scale": args.map_scale}
     if args.lr is not None:
         agent_config["lr"] = args.lr
     if clip is not None:
@@ -252,28 +247,27 @@ def train_config(
         agent_config["center_sentences"] = args.center_sentences
         agent_config["scale_up_mid"] = args.scale_up_mid
     agent_config.update(args.agent_settings)
-    config = TrainConfig.build(
-        {
-            "agent": args.agent,
-            "recipe": args.recipe,
-            "task": args.task,
-            "n_demos": args.demos,
-            "n_steps": args.steps,
-            "batch_size": args.batch_size,
-            "data_dir": data_dir,
-            "run_dir": run_dir,
-            "seed": args.seed,
-            "val_episodes": 0,
-            "checkpoint_steps": [args.steps],
-            "time_budget_s": args.minutes * 60,
-            "lr_cooldown": args.lr_cooldown,
-            "num_workers": 1,
-            "every_instruction": args.every_instruction,
-            "pair_contrasts": args.pair_contrasts,
-            "agent_config": agent_config,
-            "env": {"camera_scale": args.camera_scale},
-        }
-    )
+    given = {
+        "agent": args.agent,
+        "recipe": args.recipe,
+        "task": args.task,
+        "n_demos": args.demos,
+        "n_steps": args.steps,
+        "batch_size": args.batch_size,
+        "data_dir": data_dir,
+        "run_dir": run_dir,
+        "seed": args.seed,
+        "val_episodes": 0,
+        "checkpoint_steps": [args.steps],
+        "time_budget_s": args.minutes * 60,
+        "lr_cooldown": args.lr_cooldown,
+        "num_workers": 1,
+        "every_instruction": args.every_instruction,
+        "pair_contrasts": args.pair_contrasts,
+        "agent_config": agent_config,
+        "env": {"camera_scale": args.camera_scale},
+    }
+    config = TrainConfig.build(merge(given, run_defaults(args.task, n_rotations=args.n_rotations).overrides()))
     if check_saved and os.path.exists(os.path.join(run_dir, "config.json")):
         saved = load_run_config(run_dir).to_dict()
         changed = sorted(k for k, v in config.to_dict().items() if saved.get(k) != v)
@@ -343,17 +337,17 @@ def aims_verdict(aims: dict[str, float], result: dict[str, Any], following: dict
 def main() -> None:
     device = "cuda" if torch.cuda.is_available() else "cpu"
     args = parse_args(device)
-    n_rotations = place_rotations(args)
     data_dir, run_dir = os.path.join(args.out, "data"), os.path.join(args.out, "run")
     timings: dict[str, float] = {}
     start = time.perf_counter()
     machine = None
     if args.language:  # the first line: this machine's speed (the weights' values do not change it)
         probe_clip = "random" if "clip_weights" in agent_class(args.agent).weight_sources else None
-        probe = train_config(args, data_dir, run_dir, n_rotations, probe_clip, check_saved=False)
+        probe = train_config(args, data_dir, run_dir, probe_clip, check_saved=False)
         machine = machine_speed(probe, args, device)
     clip = resolve_clip_weights(args)
-    config = train_config(args, data_dir, run_dir, n_rotations, clip)
+    config = train_config(args, data_dir, run_dir, clip)
+    n_rotations = config.agent_config.n_rotations
 
     every = ", every instruction of each scene" if args.every_instruction else ""
     print(f"1/4 demonstrations: {args.demos} oracle episodes of {args.task}{every}")
