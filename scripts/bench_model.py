@@ -232,9 +232,7 @@ def bench_lesson(device: torch.device, steps: int, repeats: int, flags: list[str
 
     args = quickstart.parse_args(device.type, ["--language", *(flags or [])])
     with tempfile.TemporaryDirectory() as tmp:
-        config = quickstart.train_config(
-            args, tmp, os.path.join(tmp, "run"), quickstart.place_rotations(args), "random", check_saved=False
-        )
+        config = quickstart.train_config(args, tmp, os.path.join(tmp, "run"), "random", check_saved=False)
         rates = [1.0 / step_seconds(config, steps=steps) for _ in range(repeats)]
     agent_config = config.agent_config
     return {

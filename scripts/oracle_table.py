@@ -3,7 +3,7 @@
 Usage: python scripts/oracle_table.py                      (print the table)
        python scripts/oracle_table.py --readme docs/tasks.md   (rewrite the table between its markers)
        python scripts/oracle_table.py --blind --dir docs/oracle/blind --readme docs/results/blind-ceilings.md \
-           --json cliport/reference/blind_ceilings.json     (the language-blind ceilings, see below)
+           --json cliport/published/blind_ceilings.json     (the language-blind ceilings, see below)
 
 Each file holds one JSON line per seed, written by ``scripts/oracle_check.py --record-dir docs/oracle``.
 Rows are per task and mode; a seed recorded twice counts once, with its latest result. The table shows
@@ -111,7 +111,7 @@ def blind_table(scores: dict[str, dict]) -> str:
 
 
 def write_json(path: str, scores: dict[str, dict], command: str) -> None:
-    """The ceilings as ``cliport-reproduce`` reads them (``cliport/reference/blind_ceilings.json``), atomically."""
+    """The ceilings as ``cliport-reproduce`` reads them (``cliport/published/blind_ceilings.json``), atomically."""
     data = {
         "_about": "Language-blind ceilings: the mean score (total reward x100) of the scripted expert that never "
         "reads the instruction (Task.blind_plan), per task, with its 95% interval; docs/results/blind-ceilings.md.",

@@ -34,10 +34,11 @@ from typing import Any
 import torch
 
 from cliport import tasks
-from cliport.agents import agent_class, agent_names, load_agent, make_config
+from cliport.agents import agent_class, agent_names, load_agent
 from cliport.agents.registry import config_classes
 from cliport.cli.common import OneLineParser, run_cli
 from cliport.data.generate import DemoConfig, generate
+from cliport.env.config import EnvConfig
 from cliport.errors import ConfigError, RunDirError
 from cliport.evaluation.evaluate import evaluate
 from cliport.evaluation.free_form import run_instruction
@@ -49,47 +50,43 @@ from cliport.evaluation.instruction_following import (
     two_instructions_figure,
 )
 from cliport.pretrain.transfer import colour_report
-from cliport.train.config import TrainConfig, default_place_rotations, load_run_config
+from cliport.train.config import TrainConfig, load_run_config
 from cliport.train.recipes import recipe_names
+from cliport.train.run_defaults import run_defaults
 from cliport.train.step_timing import step_seconds
 from cliport.train.trainer import train
-from cliport.utils.config import add_flags, device_defaults, given_flags
+from cliport.utils.config import add_flags, device_defaults, given_flags, merge
 from cliport.utils.files import read_json, write_json
 from cliport.utils.machine import measurement_environment
 from cliport.utils.run_dir import RunDir
 from cliport.utils.tensorboard import log_result, summary_writer
 
-#: Agent config fields with flags of the quickstart's own above (defaults from configs/quickstart.toml); the rest
-#: get flags from their config fields, defaults from configs/<agent>.toml.
+#: Train config fields (and the workcell's camera_scale) with flags of the quickstart's: the flags come from the
+#: fields (cliport.utils.config.add_flags), their defaults from configs/quickstart.toml.
+RUN_FLAGS = ("task", "agent", "batch_size", "seed", "recipe", "lr_cooldown", "every_instruction", "pair_contrasts")
+#: Agent config fields whose flags take the quickstart's defaults (configs/quickstart.toml); the other agent fields'
+#: flags take the defaults of configs/<agent>.toml.
 LESSON_AGENT_FLAGS = (
     "width", "map_scale", "lr", "n_rotations", "clip_weights", "semantic_encoder", "center_sentences", "scale_up_mid"
 )  # fmt: skip
+#: The defaults of those flags where configs/quickstart.toml sets none (absent: None, the agent's).
+FLAG_FALLBACKS: dict[str, Any] = {
+    "seed": 0, "lr_cooldown": 0.0, "every_instruction": False, "map_scale": 1.0, "clip_weights": "auto",
+    "center_sentences": False, "scale_up_mid": False,
+}  # fmt: skip
+#: Flags whose default None is decided once the others are parsed: --pair-contrasts follows --every-instruction,
+#: --n-rotations is run_defaults'.
+DECIDED_LATER = ("pair_contrasts", "n_rotations")
 
 
-def parse_args(device: str, argv: list[str] | None = None) -> Any:
-    early = argparse.ArgumentParser(add_help=False)
-    early.add_argument("--language", action="store_true")
-    language = early.parse_known_args(argv)[0].language
-    setting = device_defaults("quickstart", device, "language" if language else None)
+def build_parser(setting: dict[str, Any], language: bool) -> tuple[argparse.ArgumentParser, list[str]]:
+    """The quickstart's parser with the defaults of ``setting`` (configs/quickstart.toml's section for the device),
+    and the dests of the other agent settings' flags."""
     parser = OneLineParser(prog="quickstart.py", description=__doc__.splitlines()[0])
     parser.add_argument(
         "--language",
         action="store_true",
         help="the language lesson: a language-conditioned agent, instruction following, a two-instruction figure",
-    )
-    parser.add_argument("--task", default=setting["task"])
-    parser.add_argument("--agent", default=setting["agent"], choices=agent_names())
-    parser.add_argument(
-        "--clip-weights",
-        default=setting.get("clip_weights", "auto"),
-        help="CLIP's weights for agents that use CLIP: 'auto' (the published ones where they can be had, "
-        "else seeded random ones, said and recorded), 'openai', 'random' or a file",
-    )
-    parser.add_argument(
-        "--semantic-encoder",
-        default=setting.get("semantic_encoder"),
-        help="the open_clip model of the agent's CLIP (default: the agent's, RN50-quickgelu); e.g. cliport-RN-tiny "
-        "with --clip-weights FILE from cliport-pretrain, or --clip-weights random (docs/pretraining.md)",
     )
     parser.add_argument(
         "--test-task",
@@ -128,68 +125,68 @@ def parse_args(device: str, argv: list[str] | None = None) -> Any:
         default=setting.get("check_start", 0),
         help="the first step a check may come at (0: --check-every); the last step is always checked",
     )
-    parser.add_argument("--batch-size", type=int, default=setting["batch_size"])
-    parser.add_argument("--width", type=float, default=setting["width"], help="network width (1.0 = published)")
-    parser.add_argument(
-        "--map-scale",
-        type=float,
-        default=setting.get("map_scale", 1.0),
-        help="the nets' map size / the top-down map's (1.0 = published; see docs/agents.md)",
-    )
-    parser.add_argument("--lr", type=float, default=setting.get("lr"), help="Adam learning rate (default: the agent's)")
-    parser.add_argument(
-        "--lr-cooldown",
-        type=float,
-        default=setting.get("lr_cooldown", 0.0),
-        help="the learning rate falls linearly to zero over this last fraction of training (0: constant)",
-    )
-    parser.add_argument(
-        "--n-rotations", type=int, help="place rotations (default: 1 where the task's place yaw says nothing, else 36)"
-    )
     parser.add_argument("--episodes", type=int, default=setting["episodes"], help="test episodes")
-    parser.add_argument("--camera-scale", type=float, default=setting["camera_scale"])
-    parser.add_argument("--seed", type=int, default=0, help="training seed")
-    parser.add_argument(
-        "--recipe", default=setting["recipe"], choices=recipe_names(), help="training recipe (configs/recipes.toml)"
-    )
-    parser.add_argument(
-        "--every-instruction",
-        action=argparse.BooleanOptionalAction,
-        default=setting.get("every_instruction", False),
-        help="record every instruction of each demo scene with the oracle's action for it, and train on all of them",
-    )
-    parser.add_argument(
-        "--pair-contrasts",
-        action=argparse.BooleanOptionalAction,
-        default=None,
-        help="follow each training sample by its scene under an instruction naming another block and another "
-        "bowl (needs --every-instruction; default: on where it is)",
-    )
-    parser.add_argument(
-        "--center-sentences",
-        action=argparse.BooleanOptionalAction,
-        default=setting.get("center_sentences", False),
-        help="the agent reads sentence features centred on its training instructions' mean (language agents)",
-    )
-    parser.add_argument(
-        "--scale-up-mid",
-        action=argparse.BooleanOptionalAction,
-        default=setting.get("scale_up_mid", False),
-        help="below width 1, the language decoders' up-blocks narrow their middle widths with --width too "
-        "(language agents; not the reference's rule, the same net at width 1)",
-    )
     parser.add_argument(
         "--swap-scenes",
         type=int,
         default=setting.get("swap_scenes", 0),
         help="test scenes on which instruction following is measured (each gives one swap per other block)",
     )
+    taken: set[str] = set()
+    run = parser.add_argument_group("run (defaults: configs/quickstart.toml)")
+    add_flags(
+        run,
+        [TrainConfig],
+        only=RUN_FLAGS,
+        taken=taken,
+        extra={
+            "agent": {"choices": agent_names()},
+            "recipe": {"choices": recipe_names()},
+            "every_instruction": {
+                "help": "record every instruction of each demo scene with the oracle's action for it, and train on "
+                "all of them"
+            },
+            "pair_contrasts": {
+                "help": "follow each training sample by its scene under an instruction naming another block and "
+                "another bowl (needs --every-instruction; default: on where it is)"
+            },
+        },
+    )
+    add_flags(run, [EnvConfig], only=["camera_scale"], taken=taken)
+    add_flags(
+        parser.add_argument_group("agent (defaults: configs/quickstart.toml)"),
+        config_classes(),
+        only=LESSON_AGENT_FLAGS,
+        taken=taken,
+        extra={
+            "n_rotations": {
+                "help": "place rotations (default: 1 where the task's place yaw says nothing, else the agent's 36; "
+                "cliport.train.run_defaults)"
+            },
+            "clip_weights": {
+                "help": "CLIP's weights for agents that use CLIP: 'auto' (the published ones where they can be had, "
+                "else seeded random ones, said and recorded), 'openai', 'random' or a file"
+            },
+        },
+    )
+    fields = [name for name in (*RUN_FLAGS, *LESSON_AGENT_FLAGS, "camera_scale") if name not in DECIDED_LATER]
+    parser.set_defaults(**{name: setting.get(name, FLAG_FALLBACKS.get(name)) for name in fields})
     agent_dests = add_flags(
         parser.add_argument_group("other agent settings (configs/<agent>.toml)"),
         config_classes(),
         "agent_config",
         skip=LESSON_AGENT_FLAGS,
+        taken=taken,
     )
+    return parser, agent_dests
+
+
+def parse_args(device: str, argv: list[str] | None = None) -> Any:
+    early = argparse.ArgumentParser(add_help=False)
+    early.add_argument("--language", action="store_true")
+    language = early.parse_known_args(argv)[0].language
+    setting = device_defaults("quickstart", device, "language" if language else None)
+    parser, agent_dests = build_parser(setting, language)
     args = parser.parse_args(argv)
     args.agent_settings = given_flags(args, agent_dests).get("agent_config", {})
     for name in ("demos", "steps", "batch_size", "episodes"):
@@ -232,16 +229,10 @@ def resolve_clip_weights(args: Any) -> str | None:
     return "random"
 
 
-def place_rotations(args: Any) -> int:
-    """--n-rotations, else :func:`~cliport.train.config.default_place_rotations`: 1 where the task's place yaw
-    says nothing (round bowls), else the agent's (the papers' 36)."""
-    return int(args.n_rotations or default_place_rotations(args.task) or make_config(args.agent).n_rotations)
-
-
-def train_config(
-    args: Any, data_dir: str, run_dir: str, n_rotations: int, clip: str | None, check_saved: bool = True
-) -> TrainConfig:
-    agent_config: dict[str, Any] = {"width": args.width, "n_rotations": n_rotations, "map_scale": args.map_scale}
+def train_config(args: Any, data_dir: str, run_dir: str, clip: str | None, check_saved: bool = True) -> TrainConfig:
+    """The run's config: the quickstart's settings, with the place rotations and renderer of
+    :func:`~cliport.train.run_defaults.run_defaults` (as cliport-train resolves them; ``--n-rotations`` wins)."""
+    agent_config: dict[str, Any] = {"width": args.width, "map_scale": args.map_scale}
     if args.lr is not None:
         agent_config["lr"] = args.lr
     if clip is not None:
@@ -252,28 +243,27 @@ def train_config(
         agent_config["center_sentences"] = args.center_sentences
         agent_config["scale_up_mid"] = args.scale_up_mid
     agent_config.update(args.agent_settings)
-    config = TrainConfig.build(
-        {
-            "agent": args.agent,
-            "recipe": args.recipe,
-            "task": args.task,
-            "n_demos": args.demos,
-            "n_steps": args.steps,
-            "batch_size": args.batch_size,
-            "data_dir": data_dir,
-            "run_dir": run_dir,
-            "seed": args.seed,
-            "val_episodes": 0,
-            "checkpoint_steps": [args.steps],
-            "time_budget_s": args.minutes * 60,
-            "lr_cooldown": args.lr_cooldown,
-            "num_workers": 1,
-            "every_instruction": args.every_instruction,
-            "pair_contrasts": args.pair_contrasts,
-            "agent_config": agent_config,
-            "env": {"camera_scale": args.camera_scale},
-        }
-    )
+    given = {
+        "agent": args.agent,
+        "recipe": args.recipe,
+        "task": args.task,
+        "n_demos": args.demos,
+        "n_steps": args.steps,
+        "batch_size": args.batch_size,
+        "data_dir": data_dir,
+        "run_dir": run_dir,
+        "seed": args.seed,
+        "val_episodes": 0,
+        "checkpoint_steps": [args.steps],
+        "time_budget_s": args.minutes * 60,
+        "lr_cooldown": args.lr_cooldown,
+        "num_workers": 1,
+        "every_instruction": args.every_instruction,
+        "pair_contrasts": args.pair_contrasts,
+        "agent_config": agent_config,
+        "env": {"camera_scale": args.camera_scale},
+    }
+    config = TrainConfig.build(merge(given, run_defaults(args.task, n_rotations=args.n_rotations).overrides()))
     if check_saved and os.path.exists(os.path.join(run_dir, "config.json")):
         saved = load_run_config(run_dir).to_dict()
         changed = sorted(k for k, v in config.to_dict().items() if saved.get(k) != v)
@@ -343,17 +333,17 @@ def aims_verdict(aims: dict[str, float], result: dict[str, Any], following: dict
 def main() -> None:
     device = "cuda" if torch.cuda.is_available() else "cpu"
     args = parse_args(device)
-    n_rotations = place_rotations(args)
     data_dir, run_dir = os.path.join(args.out, "data"), os.path.join(args.out, "run")
     timings: dict[str, float] = {}
     start = time.perf_counter()
     machine = None
     if args.language:  # the first line: this machine's speed (the weights' values do not change it)
         probe_clip = "random" if "clip_weights" in agent_class(args.agent).weight_sources else None
-        probe = train_config(args, data_dir, run_dir, n_rotations, probe_clip, check_saved=False)
+        probe = train_config(args, data_dir, run_dir, probe_clip, check_saved=False)
         machine = machine_speed(probe, args, device)
     clip = resolve_clip_weights(args)
-    config = train_config(args, data_dir, run_dir, n_rotations, clip)
+    config = train_config(args, data_dir, run_dir, clip)
+    n_rotations = config.agent_config.n_rotations
 
     every = ", every instruction of each scene" if args.every_instruction else ""
     print(f"1/4 demonstrations: {args.demos} oracle episodes of {args.task}{every}")

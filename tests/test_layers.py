@@ -21,7 +21,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 LAYERS: dict[str, tuple[str, ...]] = {
     "cliport.errors": (),  # the user-error exceptions
     "cliport.configs": (),  # configs/*.toml (package data)
-    "cliport.reference": (),  # the papers' published results (package data)
+    "cliport.published": (),  # the papers' published results and the blind ceilings (package data)
     "cliport.gym_registration": (),  # Gymnasium ids of the tasks, by name only (run on import cliport)
     "cliport": ("cliport.gym_registration",),  # the top package's __init__: version, checkout finder
     "cliport.utils": ("cliport.errors", "cliport.configs"),
@@ -39,7 +39,7 @@ LAYERS: dict[str, tuple[str, ...]] = {
         "cliport.models", "cliport.data", "cliport.agents",
     ),
     "cliport.evaluation": (
-        "cliport", "cliport.errors", "cliport.reference", "cliport.utils", "cliport.env", "cliport.tasks",
+        "cliport", "cliport.errors", "cliport.published", "cliport.utils", "cliport.env", "cliport.tasks",
         "cliport.data", "cliport.agents",
     ),
     "cliport.deploy": (
@@ -187,7 +187,7 @@ def test_every_module_is_in_a_unit():
         ("from . import decode\n", "cliport.agents.decode"),
         ("import importlib\nimportlib.import_module('cliport.study')\n", "cliport.study"),
         ("def f():\n    return __import__('cliport.cli.common')\n", "cliport.cli.common"),
-        ("from importlib import resources\nresources.files('cliport.reference')\n", "cliport.reference"),
+        ("from importlib import resources\nresources.files('cliport.published')\n", "cliport.published"),
         ("from cliport import tasks\n", "cliport.tasks"),
         ("from cliport import __version__\n", "cliport"),
     ],

@@ -83,6 +83,9 @@ def test_non_editable_install_from_the_repository_root_and_elsewhere(tmp_path: P
     modules = [p.relative_to(REPO / "cliport") for p in (REPO / "cliport").rglob("*.py")]
     assert [str(m) for m in modules if not (installed / m).is_file()] == []
     assert (installed / "models" / "encoders" / "clip_encoder.py").is_file()
+    # And its package data: the published numbers the study reads.
+    data = [p.relative_to(REPO / "cliport") for p in (REPO / "cliport" / "published").glob("*.json")]
+    assert len(data) == 2 and [str(d) for d in data if not (installed / d).is_file()] == []
 
     # From the root the checkout's cliport/ shadows the installed one; its tasks must come from the checkout.
     assert _probe(REPO, target) == [

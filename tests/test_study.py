@@ -64,9 +64,9 @@ def test_several_seeds_are_reported_as_mean_and_std(tmp_path):
     assert config.agent_recipes("two_stream") == ["cliport"]
     one = config.train_config("transporter_only", 10, 1, "cliport")
     assert one.run_dir == "s/runs/transporter_only-cliport-n10-s1" and one.recipe == "cliport"
-    assert StudyConfig(task="t", agents=["transporter_only"], n_demos=[1], n_steps=1, out="s", data_dir="d",
-                       recipes=["legacy"]).train_config("transporter_only", 1).run_dir == (
-        "s/runs/transporter_only-legacy-n1")  # fmt: skip
+    legacy = StudyConfig(task="block-insertion", agents=["transporter_only"], n_demos=[1], n_steps=1, out="s",
+                         data_dir="d", recipes=["legacy"])  # fmt: skip
+    assert legacy.train_config("transporter_only", 1).run_dir == "s/runs/transporter_only-legacy-n1"
 
 
 def test_ceiling_column_pairs_side_by_side_and_their_plot(tmp_path, monkeypatch):

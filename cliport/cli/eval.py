@@ -49,11 +49,11 @@ def main(argv: list[str] | None = None) -> None:
     from cliport.agents import load_agent
     from cliport.data.seeds import episode_seeds
     from cliport.deploy.hub import hub_eval_dir
-    from cliport.env.config import check_renderer
     from cliport.env.environment import RENDERER_KINDS, EnvConfig
     from cliport.evaluation.engine import EvalEngine, resolve_workers
     from cliport.evaluation.evaluate import EvalConfig, evaluate
     from cliport.train.config import load_run_config
+    from cliport.train.run_defaults import run_defaults
     from cliport.utils.config import given_flags, load
     from cliport.utils.device import resolve_device
     from cliport.utils.files import read_json, write_json
@@ -80,8 +80,7 @@ def main(argv: list[str] | None = None) -> None:
             f"{run_config.env.camera_scale}",
             file=sys.stderr,
         )
-    renderer = config.renderer or run_config.env.renderer
-    check_renderer(renderer, "--renderer")
+    renderer = run_defaults(run_config.task, renderer=config.renderer, saved=run_config).renderer
     validated_with = read_json(run.val).get("renderer") if os.path.exists(run.val) else None
     names = tasks.resolve(args.task or run_config.task)
     out = args.out or (hub_eval_dir(source) if source.startswith(HF_PREFIX) else run.eval_dir)
@@ -100,7 +99,7 @@ def main(argv: list[str] | None = None) -> None:
                 from cliport.evaluation.free_form import run_instruction
 
                 seed = args.seed if args.seed is not None else episode_seeds(config.mode, 1)[0]
-                result = run_instruction(agent, names[0], config.mode, seed, args.lang, out, camera_scale)
+                result = run_instruction(agent, names[0], config.mode, seed, args.lang, out, camera_scale, renderer)
                 print(json.dumps(result, indent=2))
                 return
             for name in names:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 
 from cliport.cli.common import OneLineParser, parse_key_values, run_cli
 from cliport.errors import ConfigError
@@ -101,6 +102,10 @@ def main(argv: list[str] | None = None) -> None:
         raise ConfigError(f"--retries must be >= 0, got {config.retries}")
     config.n_demos = sorted(set(config.n_demos))
     config.out = config.out or default_out
+    for task in config.study_tasks():  # the papers' place rotations, where the task's place yaw says nothing too
+        note = config.cell_defaults(task).note
+        if note:
+            print(note, file=sys.stderr)
     results = run_study(config, progress=not args.no_progress, wait=args.wait)
     runs = sum(len(r["runs"]) for r in results["tasks"])
     print(json.dumps({"out": config.out, "tasks": len(results["tasks"]), "runs": runs}))

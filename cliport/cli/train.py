@@ -73,25 +73,16 @@ def config_from_args(args: argparse.Namespace, dests: list[str]) -> TrainConfig:
         return TrainConfig.build(given, base=saved.to_dict())
     if not given.get("task"):
         raise ConfigError("--task is required")
-    return TrainConfig.build(_rotation_default(given))
+    from cliport.train.run_defaults import run_defaults
 
-
-def _rotation_default(given: dict[str, Any]) -> dict[str, Any]:
-    """The place rotations of :func:`~cliport.train.config.default_place_rotations` (noted on stderr where it
-    is one); given --n-rotations always wins."""
-    if "n_rotations" in given.get("agent_config", {}):
-        return given
-    from cliport.train.config import default_place_rotations
-
-    n_rotations = default_place_rotations(given["task"])
-    if n_rotations is None:
-        return given
-    print(
-        f"note: the place yaw of {given['task']} carries no information (nothing checks it), so the agent "
-        "trains with one place rotation (one query crop per sample); pass --n-rotations to choose another count",
-        file=sys.stderr,
+    defaults = run_defaults(
+        given["task"],
+        n_rotations=given.get("agent_config", {}).get("n_rotations"),
+        renderer=given.get("env", {}).get("renderer"),
     )
-    return {**given, "agent_config": {**given.get("agent_config", {}), "n_rotations": n_rotations}}
+    if defaults.note:
+        print(defaults.note, file=sys.stderr)
+    return TrainConfig.build(merge(given, defaults.overrides()))
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -56,15 +56,32 @@ def check_renderer(choice: str, flag: str = "renderer") -> None:
         raise ConfigError(f"{flag} must be auto, egl or cpu, got {choice!r}")
 
 
+def renderer_choice(choice: str) -> tuple[str, str]:
+    """The renderer kind ("egl" or "tiny") the ``renderer`` setting ``choice`` gives on this machine, and why where
+    it is TinyRenderer (else ""): the one place auto, egl and cpu are resolved, for every command (an
+    :class:`~cliport.env.environment.Environment` renders with it; :func:`expected_renderer` answers without
+    starting one). ConfigError unless ``choice`` is one of :data:`RENDERERS`.
+
+    - cpu: tiny.
+    - auto: tiny without an NVIDIA GPU (``/dev/nvidia0``): there EGL would render through Mesa's llvmpipe, which
+      loads its own LLVM into the process, and triton (torch imports it when building an optimiser) segfaults next
+      to it; TinyRenderer is as fast at the reduced resolution and safe. With a GPU, egl where PyBullet's
+      eglRenderer plugin works (:func:`cliport.env.egl.egl_works`, probed once in a child process), else tiny.
+    - egl: egl (an Environment raises where it fails).
+    """
+    check_renderer(choice)
+    if choice == "cpu":
+        return "tiny", ""
+    if choice == "auto" and not gpu_present():
+        return "tiny", "no GPU"
+    if choice == "egl":
+        return "egl", ""
+    works, why = egl_works()
+    return ("egl", "") if works else ("tiny", f"EGL fails here: {why}")
+
+
 def expected_renderer(choice: str) -> str:
     """The renderer kind ("egl" or "tiny") an Environment with the ``renderer`` setting ``choice`` uses on
-    this machine, found without starting one: "auto" is egl where an NVIDIA GPU (``/dev/nvidia0``) is
-    present and PyBullet's eglRenderer plugin works (:func:`cliport.env.egl.egl_works`). (An Environment
-    falls back to tiny if the plugin still fails to load; its :attr:`Environment.renderer_kind` is what it
-    really uses.)"""
-    check_renderer(choice)
-    if choice == "cpu" or (choice == "auto" and not gpu_present()):
-        return "tiny"
-    if choice == "egl":
-        return "egl"
-    return "egl" if egl_works()[0] else "tiny"
+    this machine, found without starting one (:func:`renderer_choice`). (An Environment falls back to tiny if
+    the plugin still fails to load; its :attr:`Environment.renderer_kind` is what it really uses.)"""
+    return renderer_choice(choice)[0]

@@ -85,20 +85,14 @@ class Environment:
 
     # ------------------------------------------------------------------ set-up
     def _choose_renderer(self, choice: str) -> tuple[int, str]:
-        env_config.check_renderer(choice)
-        if choice == "cpu":
-            return p.ER_TINY_RENDERER, "cpu (TinyRenderer)"
-        if choice == "auto" and not env_config.gpu_present():
-            # Without a GPU the plugin renders through Mesa's llvmpipe, which loads its own LLVM into
-            # the process; importing triton (torch does when building an optimiser) next to it
-            # segfaults. TinyRenderer is as fast at the reduced resolution and safe.
-            return p.ER_TINY_RENDERER, "cpu (TinyRenderer; no GPU)"
-        works, why = egl_works()  # in a child process: a failing plugin exits the process that loads it
+        kind, why = env_config.renderer_choice(choice)
+        if kind == "tiny":
+            if why.startswith("EGL fails"):
+                log.warning("PyBullet's EGL renderer fails on this machine (%s): rendering with TinyRenderer", why)
+            return p.ER_TINY_RENDERER, f"cpu (TinyRenderer; {why})" if why else "cpu (TinyRenderer)"
+        works, why = egl_works()  # asked for by name: in a child process, as a failing plugin exits its process
         if not works:
-            if choice == "egl":
-                raise RuntimeError(f"renderer='egl' was requested but PyBullet's EGL renderer fails here: {why}")
-            log.warning("PyBullet's EGL renderer fails on this machine (%s): rendering with TinyRenderer", why)
-            return p.ER_TINY_RENDERER, f"cpu (TinyRenderer; EGL fails here: {why})"
+            raise RuntimeError(f"renderer='egl' was requested but PyBullet's EGL renderer fails here: {why}")
         spec = importlib.util.find_spec("eglRenderer")
         plugin = -1
         if spec is not None and spec.origin:

@@ -23,9 +23,17 @@ def instruction_slug(lang: str, max_words: int = 6) -> str:
 
 
 def run_instruction(
-    agent: Any, task_name: str, mode: str, seed: int, lang: str, out_dir: str, camera_scale: float = 1.0
+    agent: Any,
+    task_name: str,
+    mode: str,
+    seed: int,
+    lang: str,
+    out_dir: str,
+    camera_scale: float = 1.0,
+    renderer: str | None = None,
 ) -> dict[str, Any]:
-    """Reset ``task_name`` with ``seed`` and act with ``lang`` in place of the task's instructions."""
+    """Reset ``task_name`` with ``seed`` and act with ``lang`` in place of the task's instructions, rendering with
+    ``renderer`` (the workcell setting; None: ``configs/env.toml``'s)."""
     from cliport import tasks
 
     notes = []
@@ -45,7 +53,9 @@ def run_instruction(
         save_png(path, action_panel(obs, result, instruction, similarity=similarity))
         panels.append(path)
 
-    with Environment(EnvConfig.defaults(camera_scale=camera_scale), task=tasks.make(task_name, mode)) as env:
+    with Environment(
+        EnvConfig.defaults(camera_scale=camera_scale, renderer=renderer), task=tasks.make(task_name, mode)
+    ) as env:
         env.start_recording()
         episode = run_episode(env, seed, agent_policy(agent, lang=lang, on_act=on_act))
         frames = env.stop_recording()

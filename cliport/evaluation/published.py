@@ -38,7 +38,7 @@ def published_task_name(task: str) -> str:
 @cache
 def published_results() -> dict[str, Any]:
     """The published tables (see the file's ``_about``)."""
-    text = resources.files("cliport.reference").joinpath("published_results.json").read_text()
+    text = resources.files("cliport.published").joinpath("published_results.json").read_text()
     return json.loads(text)
 
 
@@ -62,8 +62,8 @@ PLAIN_TASKS = {
 def blind_ceilings() -> dict[str, dict[str, Any]]:
     """Per task, the measured language-blind ceiling: ``score`` (mean total reward x100 of the expert that never
     reads the instruction), ``interval`` (95%), ``episodes``, ``solved``; empty where none is packaged
-    (``cliport/reference/blind_ceilings.json``, written by ``scripts/oracle_table.py --blind --json``)."""
-    path = resources.files("cliport.reference").joinpath("blind_ceilings.json")
+    (``cliport/published/blind_ceilings.json``, written by ``scripts/oracle_table.py --blind --json``)."""
+    path = resources.files("cliport.published").joinpath("blind_ceilings.json")
     if not path.is_file():
         return {}
     return dict(json.loads(path.read_text())["tasks"])

@@ -159,17 +159,35 @@ def _train_and_evaluate(config: StudyConfig, cell: Cell, train_config: Any, run:
                 camera_scale=config.camera_scale,
                 progress=progress,
                 workers=val_workers,
+                renderer=train_config.env.renderer,
             )
         train(train_config, resume=run.is_run(), progress=progress, validator=validator)
     elif validate:
-        validate_run(run.root, cell.task, config.val_episodes, config.camera_scale, device, None, progress, val_workers)
+        validate_run(
+            run.root,
+            cell.task,
+            config.val_episodes,
+            config.camera_scale,
+            device,
+            None,
+            progress,
+            val_workers,
+            renderer=train_config.env.renderer,
+        )
     test: dict[str, float] = {}
     for step in run.checkpoint_steps():
         path = os.path.join(run.eval_dir, f"{cell.task}-test-{step}.json")
         if not os.path.exists(path):
             agent = load_agent(run.checkpoint(step), device)
             result = evaluate(
-                agent, cell.task, "test", config.test_episodes, config.camera_scale, progress, workers=test_workers
+                agent,
+                cell.task,
+                "test",
+                config.test_episodes,
+                config.camera_scale,
+                progress,
+                workers=test_workers,
+                renderer=train_config.env.renderer,
             )
             result.update(
                 checkpoint=step, agent=cell.agent, recipe=cell.recipe, weight_sources=agent.weight_source_values()

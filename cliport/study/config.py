@@ -10,6 +10,7 @@ from typing import Any
 from cliport.errors import ConfigError
 from cliport.evaluation.published import paper_recipes, published_results, published_task_name
 from cliport.train.config import TrainConfig
+from cliport.train.run_defaults import RunDefaults, run_defaults
 from cliport.utils.config import from_dict, read_defaults
 from cliport.utils.files import read_json
 
@@ -155,6 +156,13 @@ class StudyConfig:
         name = f"{cell.agent}-{cell.recipe}-n{cell.n_demos}{suffix}"
         return os.path.join(self.task_dir(cell.task), "runs", name)
 
+    def cell_defaults(self, task: str) -> RunDefaults:
+        """The place rotations and renderer of the task's cells: the papers' protocol
+        (:func:`~cliport.train.run_defaults.run_defaults` with ``papers_protocol``), the agents' 36 place rotations on
+        every task, round bowls too, so that each cell compares with the published columns; ``--n-rotations``
+        (``agent_config``) changes that."""
+        return run_defaults(task, n_rotations=self.agent_config.get("n_rotations"), papers_protocol=True)
+
     def train_config(
         self,
         agent: str,
@@ -180,6 +188,7 @@ class StudyConfig:
             raise ConfigError(
                 f"--train-option cannot set {', '.join(reserved)}: the study sets it (use its own flag if it has one)"
             )
+        defaults = self.cell_defaults(task)
         given = {
             **self.train_options,
             "agent": agent,
@@ -194,9 +203,11 @@ class StudyConfig:
             "batch_size": self.batch_size,
             "device": self.device,
             "checkpoint_steps": self.checkpoint_steps,
-            # No default_place_rotations here: the study keeps the agent's (the papers') count on every task.
-            "agent_config": {k: v for k, v in self.agent_config.items() if k in fields},
-            "env": {"camera_scale": self.camera_scale},
+            "agent_config": {
+                **defaults.overrides()["agent_config"],
+                **{k: v for k, v in self.agent_config.items() if k in fields},
+            },
+            "env": {"camera_scale": self.camera_scale, "renderer": defaults.renderer},
         }
         return TrainConfig.build({k: v for k, v in given.items() if v is not None})
 

@@ -184,16 +184,6 @@ class TrainConfig:
         return to_dict(self)
 
 
-def default_place_rotations(task: str) -> int | None:
-    """The place rotations a run of ``task`` trains with when none is given, decided here for cliport-train and
-    the quickstart: 1 where the task's expert place yaw carries no information (round bowls: nothing checks it,
-    so one query crop per sample does), else None, the agent config's count (the papers' 36). cliport-reproduce
-    does not call it: it keeps the papers' count on every task to reproduce their tables."""
-    from cliport import tasks
-
-    return None if tasks.place_yaw_informative(task) else 1
-
-
 def load_run_config(run_dir: str) -> TrainConfig:
     """The resolved config a run saved (any layout version); RunDirError if the folder is not a run."""
     run = RunDir(run_dir)

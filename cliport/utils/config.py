@@ -208,15 +208,24 @@ def add_flags(
     section: str | None = None,
     skip: Iterable[str] = (),
     taken: set[str] | None = None,
+    only: Iterable[str] | None = None,
+    extra: Mapping[str, Mapping[str, Any]] | None = None,
 ) -> list[str]:
     """Add ``--field-name`` options for the scalar and list fields of ``classes`` (merged by name).
 
     The values land under ``dest = "section.field"`` (or ``"field"``); every default is None so that
     :func:`given_flags` sees only what was typed. Returns the dests added. ``taken`` collects the
-    flag names across calls; a name added twice is a programming error.
+    flag names across calls; a name added twice is a programming error. ``only``: add just these fields
+    (and not ``skip``'s). ``extra``: per field, ``add_argument`` keywords over the derived ones (``choices``, or
+    the ``help`` of a command whose use of the field differs from its description).
     """
     taken = set() if taken is None else taken
     classes = list(classes)
+    wanted = None if only is None else set(only)
+    unknown = (wanted or set()) - {f.name for cls in classes for f in dataclasses.fields(cls)}
+    if unknown:
+        raise ValueError(f"no field named {', '.join(sorted(unknown))} in {', '.join(c.__name__ for c in classes)}")
+    extra = extra or {}
     dests: list[str] = []
     seen: dict[str, Any] = {}
     for cls in classes:
@@ -225,6 +234,8 @@ def add_flags(
         for f in dataclasses.fields(cls):
             tp = hints[f.name]
             if f.name in skip or f.name in seen or _is_config(tp) or typing.get_origin(tp) is dict or tp is dict:
+                continue
+            if wanted is not None and f.name not in wanted:
                 continue
             seen[f.name] = tp
             flag = "--" + f.name.replace("_", "-")
@@ -237,9 +248,10 @@ def add_flags(
             if len(owners) < len(classes):
                 help_text += f" (only {', '.join(owners)})"
             spec = _flag_spec(tp)
-            if "action" not in spec:
+            if "action" not in spec and "choices" not in extra.get(f.name, {}):
                 spec["metavar"] = f.name.upper()
-            parser.add_argument(flag, dest=dest, default=None, help=help_text or None, **spec)
+            spec = {"help": help_text or None, **spec, **extra.get(f.name, {})}
+            parser.add_argument(flag, dest=dest, default=None, **spec)
             dests.append(dest)
     return dests
 

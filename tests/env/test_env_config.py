@@ -5,8 +5,11 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import pytest
+
 from cliport.env import config as env_config
 from cliport.env.config import EnvConfig, expected_renderer
+from cliport.errors import ConfigError
 
 BLOCK_PYBULLET = """
 import importlib.abc, sys
@@ -50,6 +53,9 @@ def test_expected_renderer_follows_the_gpu_and_the_setting(monkeypatch) -> None:
     monkeypatch.setattr(env_config, "gpu_present", lambda: False)
     assert expected_renderer("auto") == "tiny"
     assert expected_renderer("cpu") == "tiny"
+    assert env_config.renderer_choice("auto") == ("tiny", "no GPU")  # what an Environment names as its reason
     monkeypatch.setattr(env_config, "gpu_present", lambda: True)
     assert expected_renderer("egl") == "egl"
+    with pytest.raises(ConfigError, match="renderer must be auto, egl or cpu, got 'gpu'"):
+        expected_renderer("gpu")
     assert EnvConfig.defaults().renderer in ("auto", "egl", "cpu")

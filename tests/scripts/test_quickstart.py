@@ -115,6 +115,37 @@ def _quickstart_module():
     return module
 
 
+def test_every_flag_named_as_a_config_field_is_made_from_the_field(monkeypatch):
+    """A flag with the name of a train, workcell or agent config field comes from the shared flag builder (its help
+    the field's description unless the quickstart's use differs), with configs/quickstart.toml's default."""
+    import dataclasses
+
+    from cliport.agents.registry import config_classes
+    from cliport.env.config import EnvConfig
+    from cliport.train.config import TrainConfig
+    from cliport.utils.config import device_defaults
+
+    quickstart = _quickstart_module()
+    add_flags, built = quickstart.add_flags, []
+
+    def recording(*args, **kwargs):
+        dests = add_flags(*args, **kwargs)
+        built.extend(dests)
+        return dests
+
+    monkeypatch.setattr(quickstart, "add_flags", recording)
+    setting = device_defaults("quickstart", "cpu")
+    parser, _ = quickstart.build_parser(setting, language=False)
+    fields = {f.name for cls in (TrainConfig, EnvConfig, *config_classes()) for f in dataclasses.fields(cls)}
+    named_as_fields = {action.dest for action in parser._actions if action.dest in fields}
+    assert named_as_fields == {*quickstart.RUN_FLAGS, *quickstart.LESSON_AGENT_FLAGS, "camera_scale"}
+    assert named_as_fields <= set(built)
+    args = parser.parse_args([])
+    assert (args.task, args.agent, args.width, args.camera_scale) == tuple(
+        setting[k] for k in ("task", "agent", "width", "camera_scale")
+    )
+
+
 @pytest.mark.parametrize("available", [True, False])
 def test_auto_clip_weights_are_the_published_ones_where_they_can_be_had(available, monkeypatch, capsys):
     import argparse

@@ -93,6 +93,21 @@ def test_flags_are_derived_from_fields_and_only_given_ones_come_back():
         add_flags(parser, [Outer], taken={"--steps"})
 
 
+def test_a_command_takes_some_fields_with_its_own_choices_and_help():
+    parser = argparse.ArgumentParser()
+    dests = add_flags(
+        parser, [Outer], only=["steps", "maybe"], extra={"maybe": {"choices": ["a", "b"], "help": "ours"}}
+    )
+    assert dests == ["steps", "maybe"]
+    text = parser.format_help()
+    assert "--ids" not in text and "{a,b}" in text and "ours" in text and "how many." in text
+    assert parser.parse_args(["--maybe", "a"]).maybe == "a"
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--maybe", "c"])
+    with pytest.raises(ValueError, match="no field named stepz in Outer"):
+        add_flags(argparse.ArgumentParser(), [Outer], only=["stepz"])
+
+
 def test_load_reads_the_shipped_defaults_and_merges_overrides():
     env = load(EnvConfig, "env", {"camera_scale": 0.5})
     assert env.camera_scale == 0.5 and env.renderer == "auto"

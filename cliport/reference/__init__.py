@@ -1,1 +1,0 @@
-"""Published results of the CLIPort and Transporter Networks papers, shipped with the package."""
