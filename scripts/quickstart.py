@@ -34,7 +34,7 @@ from typing import Any
 import torch
 
 from cliport import tasks
-from cliport.agents import agent_class, agent_names, load_agent, make_config
+from cliport.agents import PickPlaceAgent, agent_class, agent_names
 from cliport.agents.registry import config_classes
 from cliport.cli.common import OneLineParser, run_cli
 from cliport.data.generate import DemoConfig, generate
@@ -53,7 +53,7 @@ from cliport.train.config import TrainConfig, default_place_rotations, load_run_
 from cliport.train.recipes import recipe_names
 from cliport.train.step_timing import step_seconds
 from cliport.train.trainer import train
-from cliport.utils.config import add_flags, device_defaults, given_flags
+from cliport.utils.config import add_flags, device_defaults, given_flags, read_defaults
 from cliport.utils.files import read_json, write_json
 from cliport.utils.machine import measurement_environment
 from cliport.utils.run_dir import RunDir
@@ -235,7 +235,7 @@ def resolve_clip_weights(args: Any) -> str | None:
 def place_rotations(args: Any) -> int:
     """--n-rotations, else :func:`~cliport.train.config.default_place_rotations`: 1 where the task's place yaw
     says nothing (round bowls), else the agent's (the papers' 36)."""
-    return int(args.n_rotations or default_place_rotations(args.task) or make_config(args.agent).n_rotations)
+    return int(args.n_rotations or default_place_rotations(args.task) or read_defaults(args.agent)["n_rotations"])
 
 
 def train_config(
@@ -387,7 +387,7 @@ def main() -> None:
 
     print(f"3/4 evaluating {which} on {args.episodes} test episodes")
     mark = time.perf_counter()
-    agent = load_agent(run.checkpoint(tested if tested is not None else "last"), device=device)
+    agent = PickPlaceAgent.from_pretrained(run.checkpoint(tested if tested is not None else "last"), device=device)
     result = evaluate(agent, args.task, "test", args.episodes, camera_scale=args.camera_scale)
     solved = [row for row in result["episodes"] if row["total_reward"] > 0.99]
     following = None

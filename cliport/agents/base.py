@@ -22,7 +22,7 @@ from cliport.agents import loss as objective
 from cliport.agents.config import AgentConfig
 from cliport.agents.device_options import DEVICE_OPTIONS, apply_layout_and_precision, option_applies
 from cliport.agents.loss import TrainingInputs
-from cliport.agents.registry import agent_class, agent_from_payload
+from cliport.agents.registry import agent_class, make_agent
 from cliport.errors import CheckpointError, ConfigError
 from cliport.models.cuda_graphs import GraphedForward, GraphMemory
 from cliport.models.encoder_net import EncoderNet
@@ -379,11 +379,34 @@ class PickPlaceAgent(nn.Module):
         scheduled ``.pt`` checkpoint instead. ``checkpoint`` "best" (by val.json), "last" or a step picks a
         checkpoint of a run (its ``.safetensors`` where present, else its ``.pt``). Safetensors are read without
         pickle; ``.pt`` files with torch's weights-only loader. Pretrained parts are reloaded from the recorded
-        sources unless ``weights`` maps a source field to another (as :func:`cliport.agents.load_agent`).
+        sources unless ``weights`` maps a source field to another (``{"clip_weights": "/other/path/RN50.pt"}``); a
+        field the agent does not have is ignored. The agent is moved to ``device``.
         Called on an agent class (``TwoStreamAgent.from_pretrained``), the weights must be of that agent.
         """
         path = ckpt.pretrained_file(str(source), checkpoint)
         payload = ckpt.read_payload(path)
         if not issubclass(agent_class(payload["agent"]), cls):  # before any pretrained part is loaded
             raise CheckpointError(f"{path} holds a {payload['agent']} agent, not a {cls.name or cls.__name__} one")
-        return agent_from_payload(payload, path, device=device, weights=weights)
+        return _agent_from_payload(payload, path, device, weights)
+
+
+def _agent_from_payload(
+    payload: dict[str, Any], path: str, device: str | torch.device, weights: dict[str, str] | None
+) -> PickPlaceAgent:
+    """Build the agent a checkpoint payload describes (each pretrained part from the source ``weights`` names for it,
+    else the recorded one), load its trainable weights and move it to ``device``; CheckpointError naming ``path``."""
+    name = payload["agent"]
+    config = dict(payload["config"])
+    overrides = dict(weights or {})
+    for field in agent_class(name).weight_sources:
+        recorded = payload.get("weight_sources", {}).get(field) or payload.get(field)
+        config[field] = overrides.get(field) or recorded or config.get(field)
+    try:
+        agent = make_agent(name, config)
+    except ConfigError as e:
+        raise CheckpointError(f"{path}: {e}") from e
+    try:
+        agent.load_trainable_state_dict(payload["state_dict"])
+    except (KeyError, RuntimeError) as e:
+        raise CheckpointError(f"{path} does not match its recorded agent config: {e}") from e
+    return agent.to(device)

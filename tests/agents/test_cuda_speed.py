@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 import torch
 
-from cliport.agents import PickPlaceAgent, load_agent, make_agent
+from cliport.agents import PickPlaceAgent, make_agent
 from cliport.utils.device import bf16_native
 
 pytestmark = pytest.mark.gpu
@@ -93,7 +93,7 @@ def _trained_checkpoint(name: str) -> str:
 
 
 def _fixture_agent(name: str, device: str = "cuda") -> PickPlaceAgent:
-    return load_agent(_trained_checkpoint(name), device=device)
+    return PickPlaceAgent.from_pretrained(_trained_checkpoint(name), device=device)
 
 
 def _act(agent: PickPlaceAgent, items: list) -> list[dict]:

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from cliport.agents import PickPlaceAgent, agent_class, agent_names, load_agent, make_agent
+from cliport.agents import PickPlaceAgent, agent_class, agent_names, make_agent
 
 H, W = 64, 32
 INSTRUCTION = "put the red block in the green bowl"
@@ -85,7 +85,7 @@ def test_acts_and_reloads_identically(trained, tmp_path: Path) -> None:
     buffers = {k.rsplit(".", 1)[-1] for k in payload["state_dict"] if k not in params}
     assert buffers <= {"running_mean", "running_var", "num_batches_tracked"}  # the U-Net batch norms' only
     torch.manual_seed(123)  # a different global seed must not matter
-    loaded = load_agent(path)
+    loaded = PickPlaceAgent.from_pretrained(path)
     again = loaded.act(_scene(2), instruction)
     assert type(loaded) is type(agent)
     for key, value in out.items():
@@ -117,7 +117,7 @@ def test_semantic_encoder_is_a_setting_recorded_in_checkpoints(tmp_path: Path, t
     agent.train_step(_batch(), agent.make_optimizer())
     path = tmp_path / "vit.pt"
     agent.save_checkpoint(path)
-    loaded = load_agent(path)
+    loaded = PickPlaceAgent.from_pretrained(path)
     assert loaded.config.semantic_encoder == "ViT-B-16"
     np.testing.assert_array_equal(
         agent.act(_scene(4), INSTRUCTION)["place_heatmap"], loaded.act(_scene(4), INSTRUCTION)["place_heatmap"]
@@ -125,8 +125,7 @@ def test_semantic_encoder_is_a_setting_recorded_in_checkpoints(tmp_path: Path, t
 
 
 def test_unknown_semantic_encoder_is_one_clear_error() -> None:
-    from cliport.agents import make_config
     from cliport.errors import UserError
 
     with pytest.raises(UserError, match="RN50-quickgelu"):
-        make_config("two_stream", {"semantic_encoder": "RN50-quickgel"})
+        make_agent("two_stream", {"semantic_encoder": "RN50-quickgel"})

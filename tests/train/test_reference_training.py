@@ -25,7 +25,6 @@ import torch
 import torch.nn.functional as F
 
 import cliport.agents.loss as agent_loss
-from cliport.agents import load_agent
 from cliport.agents.base import PickPlaceAgent
 from cliport.agents.loss import pick_place_terms
 from cliport.env import heightmap as hm
@@ -289,7 +288,7 @@ def transporter_reference(reference_oracle, reference_image, samples, tmp_path_f
 def _check(ours: str, run: ReferenceRun, samples: list[dict], patch: pytest.MonkeyPatch) -> list[str]:
     """Train ours from the reference's starting point and compare; returns the failures (empty: parity)."""
     reference = run.trained
-    agent = load_agent(run.checkpoint)
+    agent = PickPlaceAgent.from_pretrained(run.checkpoint)
     # The reference's key net reads its input in channels_last (a permuted (H, W, C) array); the same layout
     # here makes the float32 convolutions round alike (NCHW moves early key-layer updates by up to 3 %).
     agent.place.key_memory_format = torch.channels_last
