@@ -11,6 +11,7 @@ import torch
 
 from cliport.agents import PickPlaceAgent, agent_class, agent_names, make_agent
 from cliport.agents.config import AgentConfig, CLIPConfig
+from cliport.agents.loss import optimizer_step
 from cliport.agents.registry import _make_config
 from cliport.errors import ConfigError, UnknownNameError
 from cliport.models.encoders.dense_clip import SIMILARITY_MAPS, instruction_phrases
@@ -72,7 +73,8 @@ def _fit(
     batch = _batch(targets)
     optimizer = agent.make_optimizer()
     for step in range(1, max_steps + 1):
-        agent.train_step(batch, optimizer)
+        agent.train()  # the checks act, in eval mode
+        optimizer_step(agent.compute_loss, batch, optimizer)
         if step % check_every == 0 and all(hits(agent, t) for t in targets):
             return step
     return None
@@ -191,7 +193,8 @@ def test_two_stream_frozen_clip_is_unchanged_by_training(two_stream: PickPlaceAg
     optimizer = two_stream.make_optimizer()
     assert not any(p.requires_grad for p in clip.parameters())
     assert all(p.requires_grad for p in two_stream.trainable_parameters())
-    losses = [two_stream.train_step(batch, optimizer)["loss"] for _ in range(4)]
+    two_stream.train()
+    losses = [optimizer_step(two_stream.compute_loss, batch, optimizer)["loss"] for _ in range(4)]
     assert losses[-1] < losses[0]
     assert not clip.training and not any(m.training for m in clip.modules())
     after = clip.state_dict()
@@ -214,9 +217,9 @@ def _assert_same_act(a: PickPlaceAgent, b: PickPlaceAgent, instruction: str | No
 def test_checkpoint_round_trip(name: str, tmp_path: Path, tiny_config) -> None:
     torch.manual_seed(1)
     agent = make_agent(name, tiny_config(name))
-    agent.train_step(
-        _batch([(RED_BLOCK, GREEN_BOWL, 3, "put the red block in the green bowl")]), agent.make_optimizer()
-    )
+    agent.train()
+    batch = _batch([(RED_BLOCK, GREEN_BOWL, 3, "put the red block in the green bowl")])
+    optimizer_step(agent.compute_loss, batch, agent.make_optimizer())
     path = tmp_path / "ckpt" / "agent.pt"
     agent.save_checkpoint(path)
     assert [p.name for p in path.parent.iterdir()] == ["agent.pt"]  # no temp file left behind
@@ -359,7 +362,8 @@ def _train_and_save(agent, tmp_path: Path) -> Path:
     """Four steps on one sample (the loss must fall), then the checkpoint's path."""
     batch = _batch([(RED_BLOCK, GREEN_BOWL, 3, SIMILARITY_INSTRUCTION)])
     optimizer = agent.make_optimizer()
-    losses = [agent.train_step(batch, optimizer)["loss"] for _ in range(4)]
+    agent.train()
+    losses = [optimizer_step(agent.compute_loss, batch, optimizer)["loss"] for _ in range(4)]
     assert losses[-1] < losses[0]
     path = tmp_path / "agent.pt"
     agent.save_checkpoint(path)

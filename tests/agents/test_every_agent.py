@@ -9,6 +9,7 @@ import pytest
 import torch
 
 from cliport.agents import PickPlaceAgent, agent_class, agent_names, make_agent
+from cliport.agents.loss import optimizer_step
 
 H, W = 64, 32
 INSTRUCTION = "put the red block in the green bowl"
@@ -41,7 +42,8 @@ def trained(request: pytest.FixtureRequest, tiny_config) -> tuple[PickPlaceAgent
     agent = make_agent(request.param, tiny_config(request.param))
     frozen_before = {} if agent.encoder is None else {k: v.clone() for k, v in agent.encoder.state_dict().items()}
     optimizer = agent.make_optimizer()
-    losses = [agent.train_step(_batch(), optimizer)["loss"] for _ in range(2)]
+    agent.train()
+    losses = [optimizer_step(agent.compute_loss, _batch(), optimizer)["loss"] for _ in range(2)]
     return agent, frozen_before, losses
 
 
@@ -114,7 +116,8 @@ def test_semantic_encoder_is_a_setting_recorded_in_checkpoints(tmp_path: Path, t
     torch.manual_seed(0)
     agent = make_agent("clip_only", tiny_config("clip_only", semantic_encoder="ViT-B-16"))
     assert agent.encoder.trunk_channels == (768,) * 5 and agent.encoder.sentence_dim == 512
-    agent.train_step(_batch(), agent.make_optimizer())
+    agent.train()
+    optimizer_step(agent.compute_loss, _batch(), agent.make_optimizer())
     path = tmp_path / "vit.pt"
     agent.save_checkpoint(path)
     loaded = PickPlaceAgent.from_pretrained(path)
