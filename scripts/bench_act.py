@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from cliport.agents import PickPlaceAgent, agent_class, agent_names, load_agent, make_agent
+from cliport.agents import PickPlaceAgent, agent_class, agent_names, make_agent
 from cliport.utils.machine import measurement_environment
 
 NEAR_TIE = 1e-3
@@ -151,7 +151,7 @@ def main() -> None:
 
     def make() -> PickPlaceAgent:
         if args.checkpoint:
-            return load_agent(args.checkpoint, device)
+            return PickPlaceAgent.from_pretrained(args.checkpoint, device=device)
         torch.manual_seed(0)
         random_parts = dict.fromkeys(agent_class(args.agent).weight_sources, "random")
         return make_agent(args.agent, {"width": width, **random_parts}).to(device)

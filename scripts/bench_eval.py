@@ -22,11 +22,11 @@ from cliport.utils.machine import measurement_environment
 def _agent(checkpoint: str | None, device: str):
     import torch
 
-    from cliport.agents import load_agent, make_agent
+    from cliport.agents import PickPlaceAgent, make_agent
     from cliport.utils.device import resolve_device
 
     if checkpoint is not None:
-        return load_agent(checkpoint, resolve_device(device))
+        return PickPlaceAgent.from_pretrained(checkpoint, device=resolve_device(device))
     torch.manual_seed(0)
     tiny = {"width": 0.125, "n_rotations": 4, "crop_size": 32}
     return make_agent("transporter_only", tiny).to(resolve_device(device))

@@ -36,6 +36,7 @@ from torch.profiler import ProfilerActivity, profile
 from torch.utils.flop_counter import FlopCounterMode
 
 from cliport.agents import PickPlaceAgent, agent_class, agent_names, make_agent
+from cliport.agents.loss import optimizer_step
 from cliport.train.step_timing import step_seconds
 from cliport.utils.machine import measurement_environment
 
@@ -74,7 +75,8 @@ def _autocast(device: torch.device, amp: str) -> contextlib.AbstractContextManag
 
 
 def _train_step(agent: PickPlaceAgent, optimizer: torch.optim.Optimizer, batch: dict[str, Any], amp: str) -> None:
-    agent.train_step(batch, optimizer, _autocast(agent.device, amp))
+    agent.train()
+    optimizer_step(agent.compute_loss, batch, optimizer, _autocast(agent.device, amp))
 
 
 def _observation(rng: np.random.Generator) -> dict[str, np.ndarray]:

@@ -34,7 +34,7 @@ from typing import Any
 import torch
 
 from cliport import tasks
-from cliport.agents import agent_class, agent_names, load_agent
+from cliport.agents import PickPlaceAgent, agent_class, agent_names
 from cliport.agents.registry import config_classes
 from cliport.cli.common import OneLineParser, run_cli
 from cliport.data.generate import DemoConfig, generate
@@ -377,7 +377,7 @@ def main() -> None:
 
     print(f"3/4 evaluating {which} on {args.episodes} test episodes")
     mark = time.perf_counter()
-    agent = load_agent(run.checkpoint(tested if tested is not None else "last"), device=device)
+    agent = PickPlaceAgent.from_pretrained(run.checkpoint(tested if tested is not None else "last"), device=device)
     result = evaluate(agent, args.task, "test", args.episodes, camera_scale=args.camera_scale)
     solved = [row for row in result["episodes"] if row["total_reward"] > 0.99]
     following = None

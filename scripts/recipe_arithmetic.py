@@ -19,7 +19,7 @@ import numpy as np
 import torch
 
 from cliport import tasks
-from cliport.agents import make_agent, make_config
+from cliport.agents import make_agent
 from cliport.cli.common import OneLineParser, run_cli
 from cliport.env.environment import EnvConfig, Environment
 from cliport.train.recipes import get_recipe, recipe_names
@@ -49,8 +49,7 @@ def main() -> None:
     tasks.resolve(args.task)
     batch = _sample(args.task, args.seed)
     torch.manual_seed(args.seed)
-    config = make_config(args.agent, {"width": args.width, "n_rotations": args.n_rotations})
-    initial = make_agent(args.agent, config)
+    initial = make_agent(args.agent, {"width": args.width, "n_rotations": args.n_rotations})
     out: dict[str, object] = {"agent": args.agent, "task": args.task, "width": args.width, "recipes": {}}
     for name in recipe_names():
         recipe = get_recipe(name)

@@ -1,7 +1,9 @@
 """Pick-and-place agents, found by name through a registry (:mod:`cliport.agents.registry` says what an agent is).
 
+An agent is built from a config with ``make_agent(name, config_or_overrides)`` or loaded from a run folder, a weights
+file or an ``hf://`` name with ``PickPlaceAgent.from_pretrained(source)``; ``agent_class(name)`` is its class.
 The names below are re-exported from the modules that hold them: the base class (``base``), checkpoint files
-(``checkpoint``), the configs (``config``), and the registry with ``make_agent`` and ``load_agent`` (``registry``).
+(``checkpoint``), the configs (``config``), and the registry (``registry``).
 Each is imported when first used, so that importing a module of this package (the registry, the configs: what the
 console scripts' flags need) loads no agent and no torch. Nothing in this package imports this ``__init__``.
 """
@@ -15,32 +17,18 @@ if TYPE_CHECKING:
     from cliport.agents.base import PickPlaceAgent
     from cliport.agents.checkpoint import read_checkpoint, read_weights
     from cliport.agents.config import AgentConfig
-    from cliport.agents.registry import (
-        agent_class,
-        agent_from_payload,
-        agent_names,
-        config_classes,
-        load_agent,
-        make_agent,
-        make_config,
-        register_agent,
-        resolve_agent,
-    )
+    from cliport.agents.registry import agent_class, agent_names, config_classes, make_agent, register_agent
 
 __all__ = [
     "AgentConfig",
     "PickPlaceAgent",
     "agent_class",
-    "agent_from_payload",
     "agent_names",
     "config_classes",
-    "load_agent",
     "make_agent",
-    "make_config",
     "read_checkpoint",
     "read_weights",
     "register_agent",
-    "resolve_agent",
 ]
 
 #: The module of this package that holds each re-exported name (the registry, unless named here).

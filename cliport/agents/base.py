@@ -7,7 +7,6 @@ acting: targets and actions between poses and maps (:mod:`~cliport.agents.decode
 
 from __future__ import annotations
 
-import contextlib
 import os
 from typing import Any, ClassVar
 
@@ -22,7 +21,7 @@ from cliport.agents import loss as objective
 from cliport.agents.config import AgentConfig
 from cliport.agents.device_options import DEVICE_OPTIONS, apply_layout_and_precision, option_applies
 from cliport.agents.loss import TrainingInputs
-from cliport.agents.registry import agent_class, agent_from_payload
+from cliport.agents.registry import agent_class, make_agent
 from cliport.errors import CheckpointError, ConfigError
 from cliport.models.cuda_graphs import GraphedForward, GraphMemory
 from cliport.models.encoder_net import EncoderNet
@@ -194,7 +193,7 @@ class PickPlaceAgent(nn.Module):
         return decode.action_targets(pose0, pose1, hw, self.place.n_rotations)
 
     def training_inputs(self, batch: dict[str, Any], device: torch.device | None = None) -> TrainingInputs:
-        """A training batch as the tensors :meth:`loss_terms` takes, on ``device`` (default: the agent's):
+        """A training batch as the tensors :meth:`_loss_terms` takes, on ``device`` (default: the agent's):
         ``color`` (B, H, W, 3) uint8, ``height`` (B, H, W), ``pick_pix``/``place_pix`` (B, 2) and ``place_rot``
         (B,) int64, and ``sentence`` (B, sentence_dim) or None (always on the agent's device). With ``device`` the
         CPU, tensors the batch holds on the CPU (pinned or not) are returned as they are. The targets come from the
@@ -210,7 +209,7 @@ class PickPlaceAgent(nn.Module):
             "sentence": self.sentence_features(batch.get("lang")),
         }
 
-    def loss_terms(
+    def _loss_terms(
         self,
         color: torch.Tensor,
         height: torch.Tensor,
@@ -227,14 +226,14 @@ class PickPlaceAgent(nn.Module):
         pick_logits, place_logits = self.pick(x, sentence), self.place(x, pick_pix, sentence)
         return objective.pick_place_terms(pick_logits, place_logits, pick_pix, place_pix, place_rot, loss)
 
-    def pick_loss_terms(
+    def _pick_loss_terms(
         self, x: torch.Tensor, pick_pix: torch.Tensor, sentence: torch.Tensor | None, loss: str = "sample_ce"
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """The pick half of :meth:`loss_terms` on the raw input (B, 6, H, W) (:func:`~cliport.agents.loss.pick_term`).
+        """The pick half of :meth:`_loss_terms` on the raw input (B, 6, H, W) (:func:`~cliport.agents.loss.pick_term`).
         It shares no parameter with the place half: the two can be differentiated apart, even at once."""
         return objective.pick_term(self.pick(x, sentence), pick_pix, loss)
 
-    def place_loss_terms(
+    def _place_loss_terms(
         self,
         x: torch.Tensor,
         pick_pix: torch.Tensor,
@@ -243,27 +242,17 @@ class PickPlaceAgent(nn.Module):
         sentence: torch.Tensor | None,
         loss: str = "sample_ce",
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """The place half of :meth:`loss_terms` on the raw input (B, 6, H, W) (:func:`~.loss.place_term`)."""
+        """The place half of :meth:`_loss_terms` on the raw input (B, 6, H, W) (:func:`~.loss.place_term`)."""
         return objective.place_term(self.place(x, pick_pix, sentence), place_pix, place_rot, loss)
 
     def compute_loss(self, batch: dict[str, Any], loss: str = "sample_ce") -> tuple[torch.Tensor, dict[str, float]]:
-        """:meth:`loss_terms` of a batch as :meth:`training_inputs` reads it: the loss to minimise (``loss``:
+        """The training objective of a batch as :meth:`training_inputs` reads it: the loss to minimise (``loss``:
         ``sample_ce`` or ``cell_mean``, :func:`~cliport.agents.loss.pick_place_terms`) and the per-sample
-        cross-entropies (``loss``, ``pick_loss``, ``place_loss``) as floats, one scale for every recipe."""
-        total, terms = self.loss_terms(**self.training_inputs(batch), loss=loss)
+        cross-entropies (``loss``, ``pick_loss``, ``place_loss``) as floats, one scale for every recipe. One
+        optimiser step on it: ``agent.train()``, then
+        ``optimizer_step(agent.compute_loss, batch, optimizer)`` (:func:`~cliport.agents.loss.optimizer_step`)."""
+        total, terms = self._loss_terms(**self.training_inputs(batch), loss=loss)
         return total, objective.terms_info(terms)
-
-    def train_step(
-        self,
-        batch: dict[str, Any],
-        optimizer: torch.optim.Optimizer,
-        autocast: contextlib.AbstractContextManager[Any] | None = None,
-        loss: str = "sample_ce",
-    ) -> dict[str, float]:
-        """One optimiser step on `batch` with the ``loss`` of :meth:`compute_loss` (see
-        :func:`~cliport.agents.loss.optimizer_step`); returns the loss terms."""
-        self.train()
-        return objective.optimizer_step(lambda b: self.compute_loss(b, loss), batch, optimizer, autocast)
 
     def act(self, obs: dict[str, np.ndarray], instruction: str | None = None) -> dict[str, Any]:
         """Pick and place poses for one observation (``color`` (H, W, 3) uint8, ``height`` (H, W)).
@@ -379,11 +368,34 @@ class PickPlaceAgent(nn.Module):
         scheduled ``.pt`` checkpoint instead. ``checkpoint`` "best" (by val.json), "last" or a step picks a
         checkpoint of a run (its ``.safetensors`` where present, else its ``.pt``). Safetensors are read without
         pickle; ``.pt`` files with torch's weights-only loader. Pretrained parts are reloaded from the recorded
-        sources unless ``weights`` maps a source field to another (as :func:`cliport.agents.load_agent`).
+        sources unless ``weights`` maps a source field to another (``{"clip_weights": "/other/path/RN50.pt"}``); a
+        field the agent does not have is ignored. The agent is moved to ``device``.
         Called on an agent class (``TwoStreamAgent.from_pretrained``), the weights must be of that agent.
         """
         path = ckpt.pretrained_file(str(source), checkpoint)
         payload = ckpt.read_payload(path)
         if not issubclass(agent_class(payload["agent"]), cls):  # before any pretrained part is loaded
             raise CheckpointError(f"{path} holds a {payload['agent']} agent, not a {cls.name or cls.__name__} one")
-        return agent_from_payload(payload, path, device=device, weights=weights)
+        return _agent_from_payload(payload, path, device, weights)
+
+
+def _agent_from_payload(
+    payload: dict[str, Any], path: str, device: str | torch.device, weights: dict[str, str] | None
+) -> PickPlaceAgent:
+    """Build the agent a checkpoint payload describes (each pretrained part from the source ``weights`` names for it,
+    else the recorded one), load its trainable weights and move it to ``device``; CheckpointError naming ``path``."""
+    name = payload["agent"]
+    config = dict(payload["config"])
+    overrides = dict(weights or {})
+    for field in agent_class(name).weight_sources:
+        recorded = payload.get("weight_sources", {}).get(field) or payload.get(field)
+        config[field] = overrides.get(field) or recorded or config.get(field)
+    try:
+        agent = make_agent(name, config)
+    except ConfigError as e:
+        raise CheckpointError(f"{path}: {e}") from e
+    try:
+        agent.load_trainable_state_dict(payload["state_dict"])
+    except (KeyError, RuntimeError) as e:
+        raise CheckpointError(f"{path} does not match its recorded agent config: {e}") from e
+    return agent.to(device)

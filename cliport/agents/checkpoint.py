@@ -5,8 +5,8 @@ A checkpoint payload (see ``PickPlaceAgent.checkpoint_payload``) is a dict of ``
 ``agent``, ``config``, ``clip_weights``, ``weight_sources`` and the trainable ``state_dict``; a ``.pt``
 checkpoint is that dict saved with torch, a ``.safetensors`` weights file its tensors with the rest as string
 metadata. A checkpoint holds the trainable tensors only (:func:`trainable_state`): frozen pretrained encoders are
-reloaded from the sources it records. Nothing here imports an agent: building one from a payload is
-``cliport.agents.registry.agent_from_payload``.
+reloaded from the sources it records. Nothing here imports an agent: ``PickPlaceAgent.from_pretrained`` builds
+one from a payload.
 """
 
 from __future__ import annotations

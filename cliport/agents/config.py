@@ -3,7 +3,7 @@ own (its subclasses). They import no torch and no agent, so that the console scr
 (and ``--help``) from them alone; the registry (:data:`cliport.agents.registry.AGENTS`) says which agent
 takes which.
 
-Defaults live in ``configs/<agent name>.toml``; :func:`cliport.agents.make_config` reads them.
+Defaults live in ``configs/<agent name>.toml``; :func:`cliport.agents.make_agent` reads them.
 """
 
 from __future__ import annotations

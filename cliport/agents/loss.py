@@ -12,12 +12,12 @@ import torch.nn.functional as F
 
 #: ``(pose0, pose1, (H, W)) -> (pick pixels, place pixels, rotation bins)``: an agent's ``action_targets``.
 TargetsFn = Callable[[Any, Any, tuple[int, int]], tuple[torch.Tensor, torch.Tensor, torch.Tensor]]
-#: ``batch -> (loss, info)``: info is a dict of floats (``compute_loss``) or the (3,) device terms (``loss_terms``).
+#: ``batch -> (loss, info)``: info is a dict of floats (``compute_loss``) or the (3,) device terms (``_loss_terms``).
 LossFn = Callable[[dict[str, Any]], tuple[torch.Tensor, Any]]
 
 
 class TrainingInputs(TypedDict):
-    """A training batch as :meth:`~cliport.agents.base.PickPlaceAgent.loss_terms` takes it (``training_inputs``)."""
+    """A training batch as :meth:`~cliport.agents.base.PickPlaceAgent._loss_terms` takes it (``training_inputs``)."""
 
     color: torch.Tensor  # (B, H, W, 3) uint8
     height: torch.Tensor  # (B, H, W) float

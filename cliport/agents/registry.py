@@ -6,25 +6,27 @@ defaults in ``configs/<name>.toml``. Names, config classes and weight sources co
 importing any agent or torch (the console scripts' flags and ``--help``); an agent's module is imported when its
 class is first asked for. Everything that names agents (CLI choices, the reproduction study, scripts, published
 numbers) asks :func:`agent_names` and the agent classes' attributes (``uses_language``, ``weight_sources``,
-``published_columns``). :func:`resolve_agent` is the one place a name becomes a class, a config class and
-checked settings.
+``published_columns``).
+
+An agent is built from a config with :func:`make_agent`, or loaded from a run folder, a weights file or an
+``hf://`` name with :meth:`PickPlaceAgent.from_pretrained <cliport.agents.base.PickPlaceAgent.from_pretrained>`.
+:func:`agent_class` is the one place a name becomes a class. ``_resolve_agent``, which checks a name and its
+settings against the table (no agent imported), is internal; ``TrainConfig.build`` (:mod:`cliport.train.config`)
+is the one module outside this one that uses it.
 """
 
 from __future__ import annotations
 
 import difflib
 import importlib
-import os
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, fields
+from dataclasses import fields
 from typing import TYPE_CHECKING, Any, TypeVar
 
 from cliport.agents.config import AgentConfig, CLIPConfig, RN50BERTConfig
-from cliport.errors import CheckpointError, ConfigError, UnknownNameError
+from cliport.errors import ConfigError, UnknownNameError
 
 if TYPE_CHECKING:  # the agents' modules import this one (and torch); they are imported at first use
-    import torch
-
     from cliport.agents.base import PickPlaceAgent
 
 _PACKAGE = __name__.rpartition(".")[0]
@@ -95,116 +97,50 @@ def weight_fields() -> list[str]:
     return list(dict.fromkeys(f for cls in config_classes() for f in cls.weight_sources))
 
 
-@dataclass(frozen=True)
-class AgentSpec:
-    """An agent's name resolved by :func:`resolve_agent`: its config class and the settings asked for (checked:
-    each one a field of the config class)."""
-
-    name: str
-    config_class: type[AgentConfig]
-    overrides: dict[str, Any]
-
-    @property
-    def agent_class(self) -> type[PickPlaceAgent]:
-        """The agent's class (imports its module, and torch, at the first call)."""
-        return agent_class(self.name)
-
-
-def resolve_agent(name: object, overrides: Mapping[str, Any] | None = None) -> AgentSpec:
-    """Agent ``name`` with settings ``overrides`` (config fields, any subset): its config class and the settings.
-    UnknownNameError for an unknown name; ConfigError naming every setting the agent does not have, and its
-    settings. Imports no agent."""
+def _resolve_agent(name: object, overrides: Mapping[str, Any] | None = None) -> type[AgentConfig]:
+    """The config class of agent ``name``, once each of ``overrides`` (config fields, any subset) is checked to be
+    one of its fields. UnknownNameError for an unknown name; ConfigError naming every setting the agent does not
+    have, and its settings. Imports no agent."""
     name = _check_name(name)
     config_class = AGENTS[name]
-    given = dict(overrides or {})
     known = {f.name for f in fields(config_class)}
-    unknown = sorted(set(given) - known)
+    unknown = sorted(set(dict(overrides or {})) - known)
     if unknown:
         close = [difflib.get_close_matches(key, known, n=1) for key in unknown]
         hint = "".join(f" (did you mean {c[0]!r}?)" for c in close if c)
         raise ConfigError(
             f"agent {name} has no setting(s) {', '.join(unknown)}{hint}; its settings: {', '.join(sorted(known))}"
         )
-    return AgentSpec(name, config_class, given)
+    return config_class
 
 
-def make_config(name: str, overrides: Mapping[str, Any] | None = None) -> AgentConfig:
+def _make_config(name: str, overrides: Mapping[str, Any] | None = None) -> AgentConfig:
     """The config of agent ``name``: ``configs/<name>.toml`` updated with ``overrides`` (checked)."""
     from cliport.utils.config import load
 
-    spec = resolve_agent(name, overrides)
-    config = load(spec.config_class, name, spec.overrides)
+    config = load(_resolve_agent(name, overrides), name, overrides)
     config.validate()
     return config
 
 
 def make_agent(name: str, config: AgentConfig | dict[str, Any] | None = None) -> PickPlaceAgent:
-    """Build agent ``name`` from a config object, a dict of overrides of the defaults, or the defaults."""
-    spec = resolve_agent(name, config if isinstance(config, dict) else None)
-    if not isinstance(config, spec.config_class):
+    """Build agent ``name`` from its config object, a dict of overrides of its defaults (``configs/<name>.toml``;
+    each checked to be a setting of the agent), or the defaults. A trained agent is loaded with
+    :meth:`~cliport.agents.base.PickPlaceAgent.from_pretrained` instead."""
+    config_class = _resolve_agent(name, config if isinstance(config, dict) else None)
+    if not isinstance(config, config_class):
         if config is not None and not isinstance(config, dict):
-            raise TypeError(f"{name} needs a {spec.config_class.__name__} or a dict, got {type(config).__name__}")
-        config = make_config(name, spec.overrides)
-    return spec.agent_class(config)  # type: ignore[call-arg]  # registered agents take (config); the base takes nets
-
-
-def agent_from_payload(
-    payload: dict[str, Any],
-    path: str | os.PathLike[str],
-    device: str | torch.device = "cpu",
-    weights: dict[str, str] | None = None,
-) -> PickPlaceAgent:
-    """Build the agent a checkpoint payload (``read_checkpoint`` or ``read_weights``) describes and load its
-    weights; ``weights`` overrides recorded pretrained sources (see :func:`load_agent`). ``path`` names the
-    file in errors."""
-    config_class = resolve_agent(payload["agent"]).config_class
-    config = dict(payload["config"])
-    overrides = dict(weights or {})
-    for field in config_class.weight_sources:
-        recorded = payload.get("weight_sources", {}).get(field) or payload.get(field)
-        config[field] = overrides.get(field) or recorded or config.get(field)
-    try:
-        agent = make_agent(payload["agent"], config)
-    except ConfigError as e:
-        raise CheckpointError(f"{path}: {e}") from e
-    try:
-        agent.load_trainable_state_dict(payload["state_dict"])
-    except (KeyError, RuntimeError) as e:
-        raise CheckpointError(f"{path} does not match its recorded agent config: {e}") from e
-    return agent.to(device)
-
-
-def load_agent(
-    path: str | os.PathLike[str],
-    device: str | torch.device = "cpu",
-    weights: dict[str, str] | None = None,
-    clip_weights: str | None = None,
-) -> PickPlaceAgent:
-    """Rebuild an agent from a checkpoint written by ``save_checkpoint``.
-
-    Pretrained parts are reloaded from the sources the checkpoint records unless ``weights`` maps a
-    source field (e.g. ``{"clip_weights": "/other/path/RN50.pt"}``) to another one; a field the agent
-    does not have is ignored. ``clip_weights`` is shorthand for that field.
-    """
-    from cliport.agents.checkpoint import read_checkpoint
-
-    overrides = dict(weights or {})
-    if clip_weights is not None:
-        overrides["clip_weights"] = clip_weights
-    return agent_from_payload(read_checkpoint(path), path, device, overrides)
+            raise TypeError(f"{name} needs a {config_class.__name__} or a dict, got {type(config).__name__}")
+        config = _make_config(name, config)
+    return agent_class(name)(config)  # type: ignore[call-arg]  # registered agents take (config); the base takes nets
 
 
 __all__ = [
     "AGENTS",
-    "AgentSpec",
     "agent_class",
-    "agent_from_payload",
     "agent_names",
     "config_classes",
-    "load_agent",
     "make_agent",
-    "make_config",
     "register_agent",
-    "resolve_agent",
     "weight_fields",
 ]

@@ -46,7 +46,7 @@ def main(argv: list[str] | None = None) -> None:
     parser, dests = _parser()
     args = parser.parse_args(argv)
     from cliport import tasks
-    from cliport.agents import load_agent
+    from cliport.agents import PickPlaceAgent
     from cliport.data.seeds import episode_seeds
     from cliport.deploy.hub import hub_eval_dir
     from cliport.env.environment import RENDERER_KINDS, EnvConfig
@@ -92,7 +92,7 @@ def main(argv: list[str] | None = None) -> None:
     with contextlib.ExitStack() as stack:
         for which in checkpoints_to_run(args.run_dir, config.checkpoint):
             path = run.checkpoint(which)
-            agent = load_agent(path, device=device, weights=weights)
+            agent = PickPlaceAgent.from_pretrained(path, device=device, weights=weights)
             if args.agent is not None and agent.name != args.agent:
                 raise CheckpointError(f"{path} is a checkpoint of agent {agent.name!r}, not {args.agent!r}")
             if args.lang is not None:

@@ -119,12 +119,14 @@ class Predictor:
         bounds: Sequence[float] | np.ndarray | None = None,
         weights: dict[str, str] | None = None,
     ) -> None:
-        from cliport.agents import load_agent
+        from cliport.agents import PickPlaceAgent
         from cliport.utils.device import resolve_device
 
         self.bounds = check_bounds(bounds)
         self.checkpoint_path, self.checkpoint_step = resolve_checkpoint(run_dir, str(checkpoint))
-        self.agent = load_agent(self.checkpoint_path, device=resolve_device(device), weights=weights)
+        self.agent = PickPlaceAgent.from_pretrained(
+            self.checkpoint_path, device=resolve_device(device), weights=weights
+        )
 
     def fuse(
         self,

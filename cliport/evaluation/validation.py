@@ -49,7 +49,7 @@ def validate_run(
     cached memory given back) before the next checkpoint is loaded.
     """
     from cliport import tasks
-    from cliport.agents import load_agent
+    from cliport.agents import PickPlaceAgent
 
     run = RunDir(run_dir)
     results: dict[str, Any] = {"task": task, "n_episodes": n_episodes, "checkpoints": {}}
@@ -73,7 +73,7 @@ def validate_run(
             engine = EvalEngine(names[0], "val", config, n_workers, progress, step_timeout=step_timeout)
             engines[names[0]] = stack.enter_context(engine)
         for step in todo:
-            agent = load_agent(run.checkpoint(step), device=device, weights=weights)
+            agent = PickPlaceAgent.from_pretrained(run.checkpoint(step), device=device, weights=weights)
             evaluated = [
                 evaluate(agent, name, "val", n_episodes, camera_scale, progress, workers=n_workers,
                          engine=engines.get(name), renderer=renderer, step_timeout=step_timeout)

@@ -137,7 +137,7 @@ def _attempt(config: StudyConfig, cell: Cell, files: CellFiles, progress: bool) 
 
 def _train_and_evaluate(config: StudyConfig, cell: Cell, train_config: Any, run: RunDir, progress: bool) -> dict:
     """Train (or resume) the cell's run, validate and test every checkpoint; its summary (a row, with seed)."""
-    from cliport.agents import load_agent
+    from cliport.agents import PickPlaceAgent
     from cliport.evaluation.evaluate import evaluate
     from cliport.evaluation.validation import make_validator, validate_run
     from cliport.train.trainer import train
@@ -178,7 +178,7 @@ def _train_and_evaluate(config: StudyConfig, cell: Cell, train_config: Any, run:
     for step in run.checkpoint_steps():
         path = os.path.join(run.eval_dir, f"{cell.task}-test-{step}.json")
         if not os.path.exists(path):
-            agent = load_agent(run.checkpoint(step), device)
+            agent = PickPlaceAgent.from_pretrained(run.checkpoint(step), device=device)
             result = evaluate(
                 agent,
                 cell.task,

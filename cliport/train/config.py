@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from cliport.agents.config import AgentConfig
-from cliport.agents.registry import resolve_agent
+from cliport.agents.registry import _resolve_agent
 from cliport.env.config import EnvConfig, check_renderer
 from cliport.errors import ConfigError, RunDirError
 from cliport.train.recipes import Recipe, get_recipe, recipe_names
@@ -117,17 +117,17 @@ class TrainConfig:
         """``base`` (default: configs/train.toml) updated with ``overrides`` (nested dicts), checked.
 
         The agent's settings start from ``configs/<agent>.toml`` and the workcell's from ``configs/env.toml``; an
-        agent setting the agent does not have is a ConfigError (:func:`~cliport.agents.registry.resolve_agent`).
+        agent setting the agent does not have is a ConfigError (``cliport.agents.registry._resolve_agent``).
         """
         source = "saved config" if base is not None else defaults_file("train")
         data = merge(dict(base) if base is not None else read_defaults("train"), overrides or {})
         if not isinstance(data.get("agent"), str):
             raise ConfigError(f"{source}: agent must be an agent name, got {data.get('agent')!r}")
-        agent = resolve_agent(data["agent"], data.get("agent_config", {}))
+        agent_config_class = _resolve_agent(data["agent"], data.get("agent_config", {}))
         if base is None:
-            data["agent_config"] = merge(read_defaults(agent.name), agent.overrides)
+            data["agent_config"] = merge(read_defaults(data["agent"]), data.get("agent_config", {}))
             data["env"] = merge(read_defaults("env"), data.get("env", {}))
-        config = from_dict(cls, data, source, nested={"agent_config": agent.config_class})
+        config = from_dict(cls, data, source, nested={"agent_config": agent_config_class})
         config.validate()
         if config.training_recipe().encoder_norms == "train" and hasattr(config.agent_config, "per_net_clip_stats"):
             # Training CLIP's batch norms needs each net's own statistics, saved with its weights.

@@ -109,14 +109,14 @@ class TrainStep:
         self.model = model
         self.device = agent.device
         self.graphs = graphs and self.device.type in CAPTURE_DEVICES
-        self.loss_fn: Callable[..., tuple[torch.Tensor, torch.Tensor]] = agent.loss_terms
+        self.loss_fn: Callable[..., tuple[torch.Tensor, torch.Tensor]] = agent._loss_terms
         if compile:
             # No channels_last re-layout of the convolutions on the CPU: PyTorch 2.14's channels_last convolution
             # backward corrupts the heap there (seen compiling transporter_only at width 0.125).
             options: dict[str, str | int | bool | Callable[..., Any]] | None = None
             if self.device.type == "cpu":
                 options = {"layout_optimization": False}
-            self.loss_fn = torch.compile(agent.loss_terms, dynamic=False, options=options)
+            self.loss_fn = torch.compile(agent._loss_terms, dynamic=False, options=options)
         #: Whether eager steps differentiate the pick and place halves at once (see ``parallel_heads``).
         self.parallel_heads = (
             parallel_heads and self.device.type == "cpu" and not compile and autocast_dtype is None and model is None
@@ -208,7 +208,7 @@ class TrainStep:
         pick_pix, sentence = inputs["pick_pix"], inputs["sentence"]
 
         def place() -> torch.Tensor:
-            share, place_loss = self.agent.place_loss_terms(
+            share, place_loss = self.agent._place_loss_terms(
                 x, pick_pix, inputs["place_pix"], inputs["place_rot"], sentence, self.loss
             )
             share.backward()
@@ -219,7 +219,7 @@ class TrainStep:
         try:
             other = self._place_thread.submit(place)
             try:
-                share, pick_loss = self.agent.pick_loss_terms(x, pick_pix, sentence, self.loss)
+                share, pick_loss = self.agent._pick_loss_terms(x, pick_pix, sentence, self.loss)
                 share.backward()
             except BaseException:
                 wait([other])

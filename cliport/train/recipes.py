@@ -57,7 +57,7 @@ class Recipe:
     def prepare(self, agent: PickPlaceAgent) -> tuple[torch.optim.Optimizer, int]:
         """Set the agent's encoder batch-norm mode and build its optimiser with this recipe's epsilon; returns
         the optimiser and how many nets train their encoder's batch norms. Steps then take ``loss=self.loss``
-        (:meth:`PickPlaceAgent.train_step`)."""
+        (:meth:`PickPlaceAgent.compute_loss`)."""
         applied = agent.set_encoder_norm_training(self.encoder_norms == "train")
         if applied:
             _check_query_norm_statistics(self.name, agent)

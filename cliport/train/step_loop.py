@@ -137,7 +137,7 @@ def autocast_dtype(config: TrainConfig, device: torch.device) -> torch.dtype | N
 
 class _LossModule(nn.Module):
     """Wraps an agent so that DDP sees ``forward(batch) -> (loss, terms)`` with the recipe's loss (the (3,)
-    terms of :meth:`~cliport.agents.base.PickPlaceAgent.loss_terms`, on the device)."""
+    terms of :meth:`~cliport.agents.base.PickPlaceAgent._loss_terms`, on the device)."""
 
     def __init__(self, agent: PickPlaceAgent, loss: str) -> None:
         super().__init__()
@@ -145,7 +145,7 @@ class _LossModule(nn.Module):
         self.loss = loss
 
     def forward(self, batch: dict[str, Any]) -> tuple[torch.Tensor, torch.Tensor]:
-        return self.agent.loss_terms(**self.agent.training_inputs(batch), loss=self.loss)
+        return self.agent._loss_terms(**self.agent.training_inputs(batch), loss=self.loss)
 
 
 def _train_step(run: TrainRun, observers: tuple[Callable[[torch.Tensor], None], ...]) -> TrainStep:

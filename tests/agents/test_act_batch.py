@@ -5,6 +5,7 @@ import pytest
 import torch
 
 from cliport.agents import PickPlaceAgent, make_agent
+from cliport.agents.loss import optimizer_step
 
 H, W = 64, 32
 INSTRUCTIONS = ["put the red block in the green bowl", "pack the blue block", "put the red block in the green bowl"]
@@ -44,8 +45,9 @@ def _trained_agent(name: str, config: dict[str, object]) -> PickPlaceAgent:
     agent = make_agent(name, config)
     optimizer = torch.optim.Adam(agent.trainable_parameters(), lr=3e-3)
     batch = _batch(_observations(3), seed=1, n_rotations=agent.config.n_rotations)
+    agent.train()
     for _ in range(8):
-        agent.train_step(batch, optimizer)
+        optimizer_step(agent.compute_loss, batch, optimizer)
     return agent
 
 

@@ -9,8 +9,10 @@ import numpy as np
 import pytest
 import torch
 
-from cliport.agents import PickPlaceAgent, agent_class, agent_names, load_agent, make_agent, make_config
+from cliport.agents import PickPlaceAgent, agent_class, agent_names, make_agent
 from cliport.agents.config import AgentConfig, CLIPConfig
+from cliport.agents.loss import optimizer_step
+from cliport.agents.registry import _make_config
 from cliport.errors import ConfigError, UnknownNameError
 from cliport.models.encoders.dense_clip import SIMILARITY_MAPS, instruction_phrases
 from cliport.models.preprocess import raw_input
@@ -71,7 +73,8 @@ def _fit(
     batch = _batch(targets)
     optimizer = agent.make_optimizer()
     for step in range(1, max_steps + 1):
-        agent.train_step(batch, optimizer)
+        agent.train()  # the checks act, in eval mode
+        optimizer_step(agent.compute_loss, batch, optimizer)
         if step % check_every == 0 and all(hits(agent, t) for t in targets):
             return step
     return None
@@ -80,27 +83,27 @@ def _fit(
 def test_registry_and_default_configs() -> None:
     assert {"transporter_only", "two_stream", "clip_only", "rn50_bert"} <= set(agent_names())
     assert agent_names() == sorted(agent_names())
-    ts = make_config("two_stream")
+    ts = _make_config("two_stream")
     assert isinstance(ts, CLIPConfig)
     assert (ts.n_rotations, ts.crop_size, ts.lr, ts.width, ts.clip_weights) == (36, 64, 1e-4, 1.0, "openai")
-    to = make_config("transporter_only")
+    to = _make_config("transporter_only")
     assert type(to) is AgentConfig and (to.n_rotations, to.crop_size) == (36, 64)
     assert agent_class("two_stream").uses_language and not agent_class("transporter_only").uses_language
     assert agent_class("two_stream").weight_sources == ("clip_weights",)
     assert agent_class("rn50_bert").weight_sources == ("rn50_weights", "bert_weights")
     assert agent_class("clip_only").uses_language and agent_class("rn50_bert").uses_language
-    rb = make_config("rn50_bert")
+    rb = _make_config("rn50_bert")
     assert (rb.rn50_weights, rb.bert_weights, rb.width) == ("imagenet", "distilbert-base-uncased", 1.0)
-    assert make_config("clip_only").semantic_encoder == "RN50-quickgelu"
+    assert _make_config("clip_only").semantic_encoder == "RN50-quickgelu"
     with pytest.raises(UnknownNameError, match="unknown agent 'two_steam' \\(did you mean 'two_stream'\\?\\)"):
         make_agent("two_steam")
     with pytest.raises(ConfigError, match="transporter_only has no setting\\(s\\) n_rotation \\(did you mean 'n_rot"):
-        make_config("transporter_only", {"n_rotation": 3})
+        make_agent("transporter_only", {"n_rotation": 3})
     with pytest.raises(ConfigError, match="n_rotations must be int, got 'x'"):
-        make_config("transporter_only", {"n_rotations": "x"})
+        make_agent("transporter_only", {"n_rotations": "x"})
     for width in (0, -1):
         with pytest.raises(ConfigError, match="width must be > 0"):
-            make_config("transporter_only", {"width": width})
+            make_agent("transporter_only", {"width": width})
 
 
 def test_action_targets_follow_the_place_heads_convention(tiny_config) -> None:
@@ -158,7 +161,7 @@ def test_half_size_map_fits_within_a_pixel_and_round_trips(tmp_path: Path, tiny_
     out = agent.act(_scene())
     assert out["pick_heatmap"].shape == out["place_heatmap"].shape == (H, W)
     agent.save_checkpoint(tmp_path / "agent.pt")
-    loaded = load_agent(tmp_path / "agent.pt")
+    loaded = PickPlaceAgent.from_pretrained(tmp_path / "agent.pt")
     assert loaded.config.map_scale == 0.5 and loaded.place.crop_size == 16
     _assert_same_act(agent, loaded, None)
 
@@ -166,7 +169,7 @@ def test_half_size_map_fits_within_a_pixel_and_round_trips(tmp_path: Path, tiny_
 @pytest.mark.parametrize("scale", [0.0, 1.5, 0.25])
 def test_map_scale_outside_its_range_is_refused(scale: float) -> None:
     with pytest.raises(ConfigError, match="map_scale"):
-        make_config("transporter_only", {"map_scale": scale})
+        make_agent("transporter_only", {"map_scale": scale})
 
 
 @pytest.mark.e2e
@@ -190,7 +193,8 @@ def test_two_stream_frozen_clip_is_unchanged_by_training(two_stream: PickPlaceAg
     optimizer = two_stream.make_optimizer()
     assert not any(p.requires_grad for p in clip.parameters())
     assert all(p.requires_grad for p in two_stream.trainable_parameters())
-    losses = [two_stream.train_step(batch, optimizer)["loss"] for _ in range(4)]
+    two_stream.train()
+    losses = [optimizer_step(two_stream.compute_loss, batch, optimizer)["loss"] for _ in range(4)]
     assert losses[-1] < losses[0]
     assert not clip.training and not any(m.training for m in clip.modules())
     after = clip.state_dict()
@@ -213,9 +217,9 @@ def _assert_same_act(a: PickPlaceAgent, b: PickPlaceAgent, instruction: str | No
 def test_checkpoint_round_trip(name: str, tmp_path: Path, tiny_config) -> None:
     torch.manual_seed(1)
     agent = make_agent(name, tiny_config(name))
-    agent.train_step(
-        _batch([(RED_BLOCK, GREEN_BOWL, 3, "put the red block in the green bowl")]), agent.make_optimizer()
-    )
+    agent.train()
+    batch = _batch([(RED_BLOCK, GREEN_BOWL, 3, "put the red block in the green bowl")])
+    optimizer_step(agent.compute_loss, batch, agent.make_optimizer())
     path = tmp_path / "ckpt" / "agent.pt"
     agent.save_checkpoint(path)
     assert [p.name for p in path.parent.iterdir()] == ["agent.pt"]  # no temp file left behind
@@ -231,7 +235,7 @@ def test_checkpoint_round_trip(name: str, tmp_path: Path, tiny_config) -> None:
     others = {k.rsplit(".", 1)[-1] for k in payload["state_dict"] if k not in params}
     assert others <= {"running_mean", "running_var", "num_batches_tracked"}
     torch.manual_seed(2)
-    loaded = load_agent(path)
+    loaded = PickPlaceAgent.from_pretrained(path)
     assert type(loaded) is type(agent)
     _assert_same_act(agent, loaded, "put the red block in the green bowl")
 
@@ -245,12 +249,12 @@ def test_checkpoints_of_the_pre_parity_networks_are_refused_in_one_line(tmp_path
         path = tmp_path / f"format{fmt}.pt"
         torch.save({**payload, "format": fmt}, path)
         with pytest.raises(CheckpointError, match=re.escape(phrase)) as err:
-            load_agent(path)
+            PickPlaceAgent.from_pretrained(path)
         assert str(path) in str(err.value) and "\n" not in str(err.value)
     old = {k: v for k, v in payload.items() if k not in ("format", "cliport_version")}  # before formats existed
     torch.save(old, tmp_path / "old.pt")
     with pytest.raises(CheckpointError, match="retrain"):
-        load_agent(tmp_path / "old.pt")
+        PickPlaceAgent.from_pretrained(tmp_path / "old.pt")
 
 
 @pytest.mark.slow
@@ -264,10 +268,11 @@ def test_checkpoint_loads_in_a_fresh_process(tmp_path: Path, tiny_config) -> Non
     np.save(tmp_path / "obs_height.npy", _scene()["height"])
     script = (
         "import numpy as np, sys\n"
-        "from cliport.agents import load_agent\n"
+        "from cliport.agents import PickPlaceAgent\n"
         "d = sys.argv[1]\n"
         "obs = {'color': np.load(d + '/obs_color.npy'), 'height': np.load(d + '/obs_height.npy')}\n"
-        "np.save(d + '/got.npy', load_agent(d + '/agent.pt').act(obs, 'pack the box')['place_heatmap'])\n"
+        "agent = PickPlaceAgent.from_pretrained(d + '/agent.pt')\n"
+        "np.save(d + '/got.npy', agent.act(obs, 'pack the box')['place_heatmap'])\n"
     )
     subprocess.run([sys.executable, "-c", script, str(tmp_path)], check=True, timeout=300)
     np.testing.assert_array_equal(np.load(tmp_path / "got.npy"), expected)
@@ -357,7 +362,8 @@ def _train_and_save(agent, tmp_path: Path) -> Path:
     """Four steps on one sample (the loss must fall), then the checkpoint's path."""
     batch = _batch([(RED_BLOCK, GREEN_BOWL, 3, SIMILARITY_INSTRUCTION)])
     optimizer = agent.make_optimizer()
-    losses = [agent.train_step(batch, optimizer)["loss"] for _ in range(4)]
+    agent.train()
+    losses = [optimizer_step(agent.compute_loss, batch, optimizer)["loss"] for _ in range(4)]
     assert losses[-1] < losses[0]
     path = tmp_path / "agent.pt"
     agent.save_checkpoint(path)
@@ -369,7 +375,7 @@ def test_similarity_maps_train_and_round_trip(tiny_config, tmp_path: Path) -> No
     agent = make_agent("two_stream", _similarity_config(tiny_config, similarity_maps=True, lr=5e-4))
     path = _train_and_save(agent, tmp_path)
     assert torch.load(path, weights_only=True)["config"]["similarity_maps"] is True
-    loaded = load_agent(path)
+    loaded = PickPlaceAgent.from_pretrained(path)
     assert loaded.config.similarity_maps and loaded.config.similarity_scale == agent.config.similarity_scale
     _assert_same_act(agent, loaded, SIMILARITY_INSTRUCTION)
 
@@ -421,7 +427,7 @@ def test_a_phrase_bank_turns_the_maps_into_probabilities_and_rides_in_the_checkp
     for values in maps.values():
         assert values.min() >= 0 and values.max() <= 1  # probabilities, not cosines
     path = _train_and_save(agent, tmp_path)
-    loaded = load_agent(path)
+    loaded = PickPlaceAgent.from_pretrained(path)
     assert loaded.phrase_bank.fitted and loaded.config.similarity_bank
     torch.testing.assert_close(loaded.phrase_bank.embeddings, agent.phrase_bank.embeddings)
     _assert_same_act(agent, loaded, SIMILARITY_INSTRUCTION)

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from cliport.agents import load_agent, make_agent
+from cliport.agents import PickPlaceAgent, make_agent
 from cliport.errors import ConfigError
 
 COLOURS = ["red", "green", "blue", "yellow"]
@@ -41,7 +41,7 @@ def test_centring_is_saved_with_the_weights_and_recorded(centred, tmp_path: Path
     payload = torch.load(path, weights_only=True)
     assert payload["config"]["center_sentences"] is True
     assert float(payload["state_dict"]["sentence_scale"]) > 1
-    loaded = load_agent(path)
+    loaded = PickPlaceAgent.from_pretrained(path)
     torch.testing.assert_close(loaded.sentence_features(TEXTS[:2]), centred.sentence_features(TEXTS[:2]))
 
 
@@ -50,7 +50,7 @@ def test_checkpoints_without_the_setting_load_as_the_reference_reads_sentences(t
     payload = agent.checkpoint_payload()
     del payload["config"]["center_sentences"]  # written before the setting existed
     torch.save(payload, tmp_path / "old.pt")
-    loaded = load_agent(tmp_path / "old.pt")
+    loaded = PickPlaceAgent.from_pretrained(tmp_path / "old.pt")
     assert loaded.config.center_sentences is False and "sentence_scale" not in loaded.state_dict()
     torch.testing.assert_close(loaded.sentence_features(TEXTS[:1]), loaded.encoder.sentence_features(TEXTS[:1]))
 

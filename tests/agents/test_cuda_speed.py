@@ -23,7 +23,8 @@ import numpy as np
 import pytest
 import torch
 
-from cliport.agents import PickPlaceAgent, load_agent, make_agent
+from cliport.agents import PickPlaceAgent, make_agent
+from cliport.agents.loss import optimizer_step
 from cliport.utils.device import bf16_native
 
 pytestmark = pytest.mark.gpu
@@ -85,15 +86,16 @@ def _trained_checkpoint(name: str) -> str:
         "lang": [lang for _, lang in items],
     }
     optimizer = agent.make_optimizer()
+    agent.train()
     for _ in range(40):
-        agent.train_step(batch, optimizer)
+        optimizer_step(agent.compute_loss, batch, optimizer)
     path = os.path.join(_checkpoint_dir().name, f"{name}.pt")
     agent.save_checkpoint(path)
     return path
 
 
 def _fixture_agent(name: str, device: str = "cuda") -> PickPlaceAgent:
-    return load_agent(_trained_checkpoint(name), device=device)
+    return PickPlaceAgent.from_pretrained(_trained_checkpoint(name), device=device)
 
 
 def _act(agent: PickPlaceAgent, items: list) -> list[dict]:
@@ -156,7 +158,8 @@ def test_weights_changed_after_capture(name: str, real) -> None:
     assert optimizer.defaults["fused"]
     for group in optimizer.param_groups:
         group["lr"] = 1e-2  # a step large enough to move the maps
-    agent.train_step(_training_batch(items), optimizer)
+    agent.train()
+    optimizer_step(agent.compute_loss, _training_batch(items), optimizer)
     agent.set_act_graphs(False)
     eager = _act(agent, items)
     agent.set_act_graphs(True)
@@ -364,7 +367,8 @@ def test_a_cpu_run_resumes_on_cuda_with_fused_adam(real) -> None:
     agent = _fixture_agent("transporter_only", device="cpu")
     optimizer = torch.optim.Adam(agent.trainable_parameters(), lr=1e-4)  # the pre-speed-work construction
     batch = _training_batch(real[:2])
-    agent.train_step(batch, optimizer)
+    agent.train()
+    optimizer_step(agent.compute_loss, batch, optimizer)
     weights, state = agent.trainable_state_dict(), optimizer.state_dict()
 
     resumed = _fixture_agent("transporter_only")
@@ -374,7 +378,8 @@ def test_a_cpu_run_resumes_on_cuda_with_fused_adam(real) -> None:
     assert fused.param_groups[0]["fused"]
     for p in resumed.trainable_parameters():
         assert fused.state[p]["exp_avg"].stride() == p.stride() and fused.state[p]["exp_avg"].device == p.device
-    info = resumed.train_step(batch, fused)
+    resumed.train()
+    info = optimizer_step(resumed.compute_loss, batch, fused)
     assert np.isfinite(info["loss"])
 
 

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from cliport.agents import PickPlaceAgent, agent_class, agent_names, load_agent, make_agent
+from cliport.agents import PickPlaceAgent, agent_class, agent_names, make_agent
+from cliport.agents.loss import optimizer_step
 
 H, W = 64, 32
 INSTRUCTION = "put the red block in the green bowl"
@@ -41,7 +42,8 @@ def trained(request: pytest.FixtureRequest, tiny_config) -> tuple[PickPlaceAgent
     agent = make_agent(request.param, tiny_config(request.param))
     frozen_before = {} if agent.encoder is None else {k: v.clone() for k, v in agent.encoder.state_dict().items()}
     optimizer = agent.make_optimizer()
-    losses = [agent.train_step(_batch(), optimizer)["loss"] for _ in range(2)]
+    agent.train()
+    losses = [optimizer_step(agent.compute_loss, _batch(), optimizer)["loss"] for _ in range(2)]
     return agent, frozen_before, losses
 
 
@@ -85,7 +87,7 @@ def test_acts_and_reloads_identically(trained, tmp_path: Path) -> None:
     buffers = {k.rsplit(".", 1)[-1] for k in payload["state_dict"] if k not in params}
     assert buffers <= {"running_mean", "running_var", "num_batches_tracked"}  # the U-Net batch norms' only
     torch.manual_seed(123)  # a different global seed must not matter
-    loaded = load_agent(path)
+    loaded = PickPlaceAgent.from_pretrained(path)
     again = loaded.act(_scene(2), instruction)
     assert type(loaded) is type(agent)
     for key, value in out.items():
@@ -114,10 +116,11 @@ def test_semantic_encoder_is_a_setting_recorded_in_checkpoints(tmp_path: Path, t
     torch.manual_seed(0)
     agent = make_agent("clip_only", tiny_config("clip_only", semantic_encoder="ViT-B-16"))
     assert agent.encoder.trunk_channels == (768,) * 5 and agent.encoder.sentence_dim == 512
-    agent.train_step(_batch(), agent.make_optimizer())
+    agent.train()
+    optimizer_step(agent.compute_loss, _batch(), agent.make_optimizer())
     path = tmp_path / "vit.pt"
     agent.save_checkpoint(path)
-    loaded = load_agent(path)
+    loaded = PickPlaceAgent.from_pretrained(path)
     assert loaded.config.semantic_encoder == "ViT-B-16"
     np.testing.assert_array_equal(
         agent.act(_scene(4), INSTRUCTION)["place_heatmap"], loaded.act(_scene(4), INSTRUCTION)["place_heatmap"]
@@ -125,8 +128,7 @@ def test_semantic_encoder_is_a_setting_recorded_in_checkpoints(tmp_path: Path, t
 
 
 def test_unknown_semantic_encoder_is_one_clear_error() -> None:
-    from cliport.agents import make_config
     from cliport.errors import UserError
 
     with pytest.raises(UserError, match="RN50-quickgelu"):
-        make_config("two_stream", {"semantic_encoder": "RN50-quickgel"})
+        make_agent("two_stream", {"semantic_encoder": "RN50-quickgel"})

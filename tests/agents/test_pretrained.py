@@ -12,7 +12,7 @@ import pytest
 import torch
 from safetensors.torch import load_file, save_file
 
-from cliport.agents import PickPlaceAgent, load_agent, make_agent
+from cliport.agents import PickPlaceAgent, make_agent
 from cliport.agents.transporter_only import TransporterOnlyAgent
 from cliport.agents.two_stream import TwoStreamAgent
 from cliport.errors import CheckpointError, ConfigError, RunDirError
@@ -99,7 +99,7 @@ def test_runs_written_before_safetensors_still_load(transporter, tmp_path) -> No
     _assert_same_actions(transporter, PickPlaceAgent.from_pretrained(root))  # newest scheduled .pt
     for which in ("best", "last", 2, "2"):
         _assert_same_weights(transporter, PickPlaceAgent.from_pretrained(root, checkpoint=which))
-    _assert_same_weights(transporter, load_agent(RunDir(root).checkpoint(2)))  # load_agent unchanged
+    _assert_same_weights(transporter, PickPlaceAgent.from_pretrained(RunDir(root).checkpoint(2)))  # a .pt file
 
 
 def test_bad_sources_are_clear_errors(transporter, tmp_path) -> None:

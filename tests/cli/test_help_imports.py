@@ -52,17 +52,17 @@ def test_agent_flags_need_no_agent_import() -> None:
     its module is imported) only when asked."""
     code = (
         "import sys\n"
-        "from cliport.agents.registry import agent_names, config_classes, resolve_agent, weight_fields\n"
-        "spec = resolve_agent('rn50_bert', {'width': 0.5})\n"
-        "print(agent_names(), [c.__name__ for c in config_classes()], weight_fields(), spec.config_class.__name__,\n"
-        "      spec.overrides, 'torch' in sys.modules)\n"
-        "print(spec.agent_class.__name__, 'torch' in sys.modules)\n"
+        "from cliport.agents.registry import _resolve_agent, agent_class, agent_names, config_classes, weight_fields\n"
+        "config_class = _resolve_agent('rn50_bert', {'width': 0.5})\n"
+        "print(agent_names(), [c.__name__ for c in config_classes()], weight_fields(), config_class.__name__,\n"
+        "      'torch' in sys.modules)\n"
+        "print(agent_class('rn50_bert').__name__, 'torch' in sys.modules)\n"
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=ROOT)
     assert done.returncode == 0, done.stderr[-2000:]
     first, second = done.stdout.strip().splitlines()
     assert first == (
         "['clip_only', 'rn50_bert', 'transporter_only', 'two_stream'] ['CLIPConfig', 'RN50BERTConfig', "
-        "'AgentConfig'] ['clip_weights', 'rn50_weights', 'bert_weights'] RN50BERTConfig {'width': 0.5} False"
+        "'AgentConfig'] ['clip_weights', 'rn50_weights', 'bert_weights'] RN50BERTConfig False"
     )
     assert second == "RN50BERTAgent True"

@@ -32,6 +32,7 @@ def make_run(
     import torch
 
     from cliport.agents import make_agent
+    from cliport.agents.loss import optimizer_step
     from cliport.train.config import TrainConfig
 
     config = TrainConfig.build(
@@ -54,8 +55,9 @@ def make_run(
             "lang": ["insert the block"],
         }
         optimizer = torch.optim.Adam(agent.trainable_parameters(), lr=1e-3)
+        agent.train()
         for _ in range(200):
-            info = agent.train_step(batch, optimizer)
+            info = optimizer_step(agent.compute_loss, batch, optimizer)
             if info["pick_loss"] < 0.5 and info["place_loss"] < 0.5:
                 break
         else:

@@ -153,7 +153,7 @@ def _fill_cache(home, folder, repo_id: str = "org/tiny") -> str:
 
 
 def test_hub_run_resolves_from_the_cache_and_acts_like_the_original(trained_run, tmp_path, offline_hub):
-    from cliport.agents import load_agent
+    from cliport.agents import PickPlaceAgent
     from cliport.deploy import Predictor
 
     out = tmp_path / "push"
@@ -165,7 +165,7 @@ def test_hub_run_resolves_from_the_cache_and_acts_like_the_original(trained_run,
 
     predictor = Predictor("hf://org/tiny")  # best from the pushed val.json
     assert predictor.checkpoint_path == RunDir(snapshot).checkpoint(2)
-    original = load_agent(RunDir(trained_run).checkpoint(2))
+    original = PickPlaceAgent.from_pretrained(RunDir(trained_run).checkpoint(2))
     rng = np.random.default_rng(0)
     obs = {"color": rng.integers(0, 255, (320, 160, 3), dtype=np.uint8),
            "height": rng.uniform(0, 0.1, (320, 160)).astype(np.float32)}  # fmt: skip

@@ -9,7 +9,7 @@ import os
 import numpy as np
 import pytest
 
-from cliport.agents import load_agent
+from cliport.agents import PickPlaceAgent
 from cliport.cli import predict as predict_cli
 from cliport.cli.common import run_cli
 from cliport.deploy import Predictor
@@ -33,7 +33,7 @@ def _argv(run_dir: str, files: dict, out: str, lang: str, *extra: str) -> list[s
 def sim_action(sim_scene, tiny_run):
     """The agent acting on the simulator's own observation (the best checkpoint, step 1)."""
     obs, _, lang = sim_scene
-    agent = load_agent(RunDir(tiny_run).checkpoint(1))
+    agent = PickPlaceAgent.from_pretrained(RunDir(tiny_run).checkpoint(1))
     return agent.act({"color": obs["color"], "height": obs["height"]}, lang)
 
 

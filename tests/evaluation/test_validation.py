@@ -105,14 +105,14 @@ def test_validation_holds_one_agent_at_a_time(trained_run, tmp_path, monkeypatch
     import numpy as np
     import torch
 
-    import cliport.agents
+    from cliport.agents import PickPlaceAgent
     from cliport.evaluation import validation
     from cliport.evaluation.evaluate import summarise
 
     loaded: list[weakref.ref] = []
-    real = cliport.agents.load_agent
+    real = PickPlaceAgent.from_pretrained
 
-    def load_agent(*args, **kwargs):
+    def from_pretrained(*args, **kwargs):
         assert all(ref() is None for ref in loaded), "the previous checkpoint's agent is still alive"
         agent = real(*args, **kwargs)
         loaded.append(weakref.ref(agent))
@@ -122,7 +122,7 @@ def test_validation_holds_one_agent_at_a_time(trained_run, tmp_path, monkeypatch
         agent.act({"color": np.zeros((64, 32, 3), np.uint8), "height": np.zeros((64, 32), np.float32)})
         return {**summarise(VAL_TASK, "val", [{"seed": 1, "total_reward": 0.0, "actions": 1}]), "renderer": "tiny"}
 
-    monkeypatch.setattr(cliport.agents, "load_agent", load_agent)
+    monkeypatch.setattr(PickPlaceAgent, "from_pretrained", from_pretrained)
     monkeypatch.setattr(validation, "evaluate", evaluate)
     run_dir = _copy_run(trained_run, tmp_path / "run")
     gc.collect()

@@ -100,7 +100,7 @@ def test_a_pair_trains_as_its_samples_computed_apart(name: str, tiny_config, mon
         inputs = agent.training_inputs(batch)
         x = raw_input(inputs["color"], inputs["height"])
         maps = [agent.pick(x, inputs["sentence"]), agent.place(x, inputs["pick_pix"], inputs["sentence"])]
-        total, _ = agent.loss_terms(**inputs)
+        total, _ = agent._loss_terms(**inputs)
         total.backward()
         grads = [p.grad.clone() for p in agent.parameters() if p.grad is not None]
         return [m.detach() for m in maps], grads

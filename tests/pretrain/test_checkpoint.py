@@ -9,7 +9,7 @@ import os
 import pytest
 import torch
 
-from cliport.agents import load_agent, make_agent
+from cliport.agents import PickPlaceAgent, make_agent
 from cliport.models.encoders.clip_encoder import load_clip
 from cliport.models.encoders.clip_registry import import_open_clip
 from cliport.models.encoders.clip_weights import CLIPWeightsUnavailable
@@ -63,8 +63,13 @@ def test_the_agent_freezes_it_and_its_checkpoint_records_it(pretrained: str, tmp
     payload = torch.load(path, weights_only=True)
     assert payload["clip_weights"] == pretrained and payload["config"]["semantic_encoder"] == "cliport-RN-tiny"
     assert not any("encoder" in k and "model" in k for k in payload["state_dict"])  # frozen weights never saved
-    again = load_agent(path)
+    again = PickPlaceAgent.from_pretrained(path)
     assert all(torch.equal(again.encoder.model.state_dict()[k], written[k]) for k in written)
+    other = PickPlaceAgent.from_pretrained(path, weights={"clip_weights": "random"})  # another source, same nets
+    assert other.clip_source() == "random" and other.config.clip_weights == "random"
+    assert not all(torch.equal(other.encoder.model.state_dict()[k], written[k]) for k in written)
+    trained = agent.trainable_state_dict()
+    assert all(torch.equal(v, trained[k]) for k, v in other.trainable_state_dict().items())
 
 
 def test_the_wrong_architecture_is_one_line(pretrained: str) -> None:

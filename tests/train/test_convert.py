@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import torch
 
-from cliport.agents import load_agent, make_agent
+from cliport.agents import PickPlaceAgent, make_agent
 from cliport.cli import convert as convert_cli
 from cliport.cli.common import run_cli
 from cliport.models import reference_names
@@ -92,7 +92,7 @@ def test_converted_run_acts_as_the_original_and_records_its_source(transporter_c
     rd = RunDir(str(run))
     assert rd.checkpoint_steps() == [2000] and rd.resolve("best") == [2000]  # the only checkpoint
     assert os.path.samefile(rd.checkpoint(2000), rd.checkpoint("last"))
-    loaded = load_agent(rd.checkpoint(2000))
+    loaded = PickPlaceAgent.from_pretrained(rd.checkpoint(2000))
     obs = _observation()
     ours, theirs = loaded.act(obs), original.act(obs)
     for key in ("pick_pix", "place_pix", "place_bin", "pose0", "pose1"):

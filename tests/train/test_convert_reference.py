@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import torch
 
-from cliport.agents import load_agent
+from cliport.agents import PickPlaceAgent
 from cliport.train.convert import convert_checkpoint
 from cliport.utils.run_dir import RunDir
 
@@ -55,7 +55,7 @@ def test_converted_checkpoint_acts_as_the_reference_agent(
     run = tmp_path / "run"
     summary = convert_checkpoint(str(ckpt), str(run), clip_weights="checkpoint")
     assert summary["reference_agent"] == reference_agent and summary["task"] == TASK
-    agent = load_agent(RunDir(str(run)).checkpoint(summary["global_step"]))
+    agent = PickPlaceAgent.from_pretrained(RunDir(str(run)).checkpoint(summary["global_step"]))
     if reference_agent == "cliport":
         # The three nets act with three different sets of CLIP statistics, as the reference's copies do.
         stats = [net.encoder_stats.as_dict() for net in (agent.pick.net, agent.place.key_net, agent.place.query_net)]

@@ -79,7 +79,7 @@ def test_an_error_in_the_place_half_is_raised_by_the_step(tiny_config, threads, 
     def broken(*args, **kwargs):
         raise RuntimeError("the place half failed")
 
-    monkeypatch.setattr(agent, "place_loss_terms", broken)
+    monkeypatch.setattr(agent, "_place_loss_terms", broken)
     with pytest.raises(RuntimeError, match="the place half failed"):
         step(_batch(0))
     assert torch.get_num_threads() == 2

@@ -10,7 +10,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from cliport.agents import make_agent, make_config
+from cliport.agents import make_agent
 from cliport.errors import ConfigError, UnknownNameError
 from cliport.train.config import TrainConfig
 from cliport.train.recipes import Recipe, get_recipe, recipe_names
@@ -46,7 +46,7 @@ def test_recipes_bundle_what_each_papers_code_does() -> None:
 
 def test_losses_follow_their_formulas(tiny_config) -> None:
     torch.manual_seed(0)
-    agent = make_agent("transporter_only", make_config("transporter_only", tiny_config("transporter_only")))
+    agent = make_agent("transporter_only", tiny_config("transporter_only"))
     agent.eval()
     batch = _batch(3)
     from cliport.models.preprocess import raw_input
@@ -73,12 +73,12 @@ def test_losses_follow_their_formulas(tiny_config) -> None:
 
 
 def test_prepare_sets_adams_epsilon_and_the_encoder_norm_mode(tiny_config) -> None:
-    agent = make_agent("clip_only", make_config("clip_only", tiny_config("clip_only", per_net_clip_stats=True)))
+    agent = make_agent("clip_only", tiny_config("clip_only", per_net_clip_stats=True))
     optimizer, applied = get_recipe("cliport").prepare(agent)
     assert applied == 3 and optimizer.param_groups[0]["eps"] == 1e-8
     optimizer, applied = get_recipe("ravens").prepare(agent)
     assert applied == 0 and optimizer.param_groups[0]["eps"] == 1e-7
-    shared = make_agent("clip_only", make_config("clip_only", tiny_config("clip_only")))
+    shared = make_agent("clip_only", tiny_config("clip_only"))
     assert get_recipe("cliport").prepare(shared)[1] == 0  # no per-net statistics: the shared trunk stays frozen
 
 
@@ -86,16 +86,16 @@ def test_cliport_recipe_refuses_a_query_crop_clip_shrinks_to_one_value(tiny_conf
     """The language lesson's CPU size (64-pixel crops at map_scale 0.5, one rotation) under the cliport recipe
     failed deep inside a batch norm ("Expected more than 1 value per channel when training"): one line instead."""
     one = tiny_config("clip_only", per_net_clip_stats=True, crop_size=64, map_scale=0.5, n_rotations=1)
-    agent = make_agent("clip_only", make_config("clip_only", one))
+    agent = make_agent("clip_only", one)
     with pytest.raises(ConfigError, match="32-pixel crop .* 1 rotation.* leaves 1 value per channel .* ravens recipe"):
         get_recipe("cliport").prepare(agent)
     assert get_recipe("ravens").prepare(agent)[1] == 0  # CLIP stays in inference mode: nothing to refuse
-    two = make_agent("clip_only", make_config("clip_only", {**one, "n_rotations": 2}))
+    two = make_agent("clip_only", {**one, "n_rotations": 2})
     assert get_recipe("cliport").prepare(two)[1] == 3
 
 
 def test_cliport_recipe_trains_clip_batch_norms_per_sample_as_batch_1_steps(tiny_config) -> None:
-    config = make_config("clip_only", tiny_config("clip_only", per_net_clip_stats=True, n_rotations=2))
+    config = tiny_config("clip_only", per_net_clip_stats=True, n_rotations=2)
     torch.manual_seed(0)
     batched = make_agent("clip_only", config)
     sequential = copy.deepcopy(batched)

@@ -14,6 +14,7 @@ docs/parity.md, "Training"). Skipped without the reference code (CLIPORT_REFEREN
 from __future__ import annotations
 
 import copy
+import functools
 import gc
 import math
 from collections import defaultdict
@@ -25,9 +26,8 @@ import torch
 import torch.nn.functional as F
 
 import cliport.agents.loss as agent_loss
-from cliport.agents import load_agent
 from cliport.agents.base import PickPlaceAgent
-from cliport.agents.loss import pick_place_terms
+from cliport.agents.loss import optimizer_step, pick_place_terms
 from cliport.env import heightmap as hm
 from cliport.models import correlation, reference_names
 from cliport.train.convert import convert_checkpoint
@@ -141,7 +141,9 @@ def _train(agent: PickPlaceAgent, recipe, samples: list[dict]):
             )
 
     optimizer.register_step_pre_hook(record)
-    infos = [agent.train_step(_batch(s), optimizer, loss=recipe.loss) for s in samples]
+    agent.train()
+    loss = functools.partial(agent.compute_loss, loss=recipe.loss)
+    infos = [optimizer_step(loss, _batch(s), optimizer) for s in samples]
     settings = {k: optimizer.param_groups[0][k] for k in ADAM_SETTINGS}
     return infos, {k: v.clone() for k, v in agent.trainable_state_dict().items()}, first, settings, applied
 
@@ -289,7 +291,7 @@ def transporter_reference(reference_oracle, reference_image, samples, tmp_path_f
 def _check(ours: str, run: ReferenceRun, samples: list[dict], patch: pytest.MonkeyPatch) -> list[str]:
     """Train ours from the reference's starting point and compare; returns the failures (empty: parity)."""
     reference = run.trained
-    agent = load_agent(run.checkpoint)
+    agent = PickPlaceAgent.from_pretrained(run.checkpoint)
     # The reference's key net reads its input in channels_last (a permuted (H, W, C) array); the same layout
     # here makes the float32 convolutions round alike (NCHW moves early key-layer updates by up to 3 %).
     agent.place.key_memory_format = torch.channels_last

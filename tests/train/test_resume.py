@@ -8,6 +8,7 @@ import pytest
 import torch
 
 from cliport.agents import PickPlaceAgent, make_agent
+from cliport.agents.loss import optimizer_step
 from cliport.train.config import TrainConfig
 from cliport.train.resume import load_optimizer_state
 from cliport.train.trainer import train
@@ -41,8 +42,9 @@ def _saved_run(config: dict, layout: torch.memory_format) -> tuple[dict, dict]:
     the CPU in torch 2.14, which the CPU path never uses)."""
     agent = _agent(config, torch.contiguous_format)
     optimizer = torch.optim.Adam(agent.trainable_parameters(), lr=1e-3, foreach=True)
+    agent.train()
     for seed in (1, 2):
-        agent.train_step(_batch(seed), optimizer)
+        optimizer_step(agent.compute_loss, _batch(seed), optimizer)
     state = optimizer.state_dict()
     for moments in state["state"].values():
         for key in ("exp_avg", "exp_avg_sq"):

@@ -13,7 +13,7 @@ import pytest
 import torch
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-from cliport.agents import PickPlaceAgent, load_agent
+from cliport.agents import PickPlaceAgent
 from cliport.cli import demos as demos_cli
 from cliport.cli import eval as eval_cli
 from cliport.cli import train as train_cli
@@ -97,7 +97,7 @@ def test_run_folder_holds_safetensors_that_from_pretrained_loads(run_dir) -> Non
     run = RunDir(run_dir)
     assert os.path.isfile(run.weights(1)) and os.path.isfile(run.weights(2))
     assert os.path.samefile(run.model_weights, run.weights(2))  # the newest scheduled checkpoint
-    original = load_agent(run.checkpoint(2))
+    original = PickPlaceAgent.from_pretrained(run.checkpoint(2))
     weights = load_file(run.model_weights)
     assert weights.keys() == original.trainable_state_dict().keys()
     for key, value in original.trainable_state_dict().items():
@@ -112,6 +112,6 @@ def test_run_folder_holds_safetensors_that_from_pretrained_loads(run_dir) -> Non
     np.testing.assert_array_equal(a["pick_heatmap"], b["pick_heatmap"])
     np.testing.assert_array_equal(a["place_heatmap"], b["place_heatmap"])
     best = PickPlaceAgent.from_pretrained(run_dir, checkpoint="best")  # val.json's choice, from its .safetensors
-    chosen = load_agent(run.checkpoint(read_json(run.val)["best_step"]))
+    chosen = PickPlaceAgent.from_pretrained(run.checkpoint(read_json(run.val)["best_step"]))
     for key, value in chosen.trainable_state_dict().items():
         torch.testing.assert_close(best.trainable_state_dict()[key], value, rtol=0, atol=0)
