@@ -77,13 +77,15 @@ def agent_policy(
 
 
 def summarise(task_name: str, mode: str, rows: list[dict[str, Any]]) -> dict[str, Any]:
-    """The evaluation result of per-episode ``rows`` (``seed``, ``total_reward``, ``actions``[, ``video``]):
+    """The evaluation result of per-episode ``rows`` (``seed``, ``total_reward``, ``actions``[, ``instruction``:
+    an agent's episode's first, ``video``]):
     mean score with its 95% interval, success rate with its Wilson interval, and the rows."""
     episodes = []
     for r in rows:
         row = {"seed": r["seed"], "total_reward": round(r["total_reward"], 4), "actions": r["actions"]}
-        if "video" in r:
-            row["video"] = r["video"]
+        for key in ("instruction", "video"):
+            if key in r:
+                row[key] = r[key]
         episodes.append(row)
     scores = [100 * e["total_reward"] for e in episodes]
     low, high = confidence_interval(scores)

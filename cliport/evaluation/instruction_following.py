@@ -91,13 +91,23 @@ def instruction_following(
 
 def scene_instruction(task_name: str, seed: int, camera_scale: float = 1.0, mode: str = "test") -> str | None:
     """The instruction of scene ``seed`` of ``task_name`` (its first goal's)."""
+    return scene_instructions(task_name, [seed], camera_scale, mode)[seed]
+
+
+def scene_instructions(
+    task_name: str, seeds: list[int], camera_scale: float = 1.0, mode: str = "test"
+) -> dict[int, str | None]:
+    """The instruction of each scene of ``seeds`` (its first goal's), from one simulator."""
     from cliport import tasks
     from cliport.env.environment import EnvConfig, Environment
 
     task = tasks.make(task_name, mode)
+    out: dict[int, str | None] = {}
     with Environment(EnvConfig.defaults(camera_scale=camera_scale), task=task) as env:
-        env.reset(seed=seed)
-        return task.lang_goal
+        for seed in seeds:
+            env.reset(seed=seed)
+            out[seed] = task.lang_goal
+    return out
 
 
 def two_instructions_figure(

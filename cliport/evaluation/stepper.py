@@ -33,6 +33,7 @@ class _Episode:
     video_fps: int
     total_reward: float = 0.0
     actions: int = 0
+    instruction: str | None = None  # the first instruction of an agent's episode
     start: float = field(default_factory=time.perf_counter)
 
 
@@ -73,7 +74,7 @@ class EpisodeStepper:
             self._maybe_crash()
             return self._finish()
         self.obs = self.env.reset(seed)
-        self.lang_goal = self.env.lang_goal
+        self.lang_goal = self.episode.instruction = self.env.lang_goal
         return self._next()
 
     def step(self, action: dict[str, Any] | None) -> tuple[Any, ...]:
@@ -106,6 +107,8 @@ class EpisodeStepper:
             "actions": episode.actions,
             "seconds": time.perf_counter() - episode.start,
         }
+        if episode.instruction is not None:
+            row["instruction"] = episode.instruction
         if episode.video_path is not None:
             from cliport.evaluation.visualize import save_video
 

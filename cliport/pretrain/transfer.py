@@ -13,9 +13,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from cliport.evaluation.evaluate import evaluate
+from cliport.evaluation.evaluate import confidence_interval, evaluate
 from cliport.evaluation.instruction_following import instruction_following, lesson_task
-from cliport.pretrain.vocabulary import UNSEEN_COLORS
+from cliport.pretrain.vocabulary import COLOR_NAMES, UNSEEN_COLORS
 
 
 def scene_colors(task_name: str, seeds: list[int], camera_scale: float = 1.0, mode: str = "test") -> dict[int, Any]:
@@ -47,6 +47,41 @@ def named_group(block: str, bowl: str) -> str:
     if block_unseen and bowl_unseen:
         return "both_unseen"
     return "block_unseen" if block_unseen else "bowl_unseen" if bowl_unseen else "neither_unseen"
+
+
+def named_colors(instruction: str) -> tuple[str, str]:
+    """The block and bowl colours an instruction names, the first and last colour words ("put the pink blocks in a
+    green bowl" -> ("pink", "green")); ValueError where it names none."""
+    words = [w for w in instruction.lower().replace(",", " ").replace(".", " ").split() if w in COLOR_NAMES]
+    if not words:
+        raise ValueError(f"the instruction {instruction!r} names no colour")
+    return words[0], words[-1]
+
+
+def score_by_named(result: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """An evaluation result (:func:`~cliport.evaluation.evaluate.summarise`; each episode with its
+    ``instruction``) split by :func:`named_group` of the block and bowl colours its instructions name: per group,
+    ``episodes``, ``mean_score`` (mean total reward x100) with its 95 % interval and ``solved``."""
+    groups: dict[str, list[float]] = {name: [] for name in NAMED_GROUPS}
+    for episode in result["episodes"]:
+        if "instruction" not in episode:
+            raise ValueError(f"episode {episode['seed']} records no instruction (evaluated before they were kept)")
+        groups[named_group(*named_colors(episode["instruction"]))].append(100 * episode["total_reward"])
+    return {
+        name: {**mean_score(scores), "solved": sum(score > 99 for score in scores)} for name, scores in groups.items()
+    }
+
+
+def mean_score(scores: list[float]) -> dict[str, Any]:
+    """``episodes``, ``mean_score`` and its 95 % interval ``ci95`` of scores in [0, 100]; None where there are none."""
+    if not scores:
+        return {"episodes": 0, "mean_score": None, "ci95": None}
+    low, high = confidence_interval(scores)
+    return {
+        "episodes": len(scores),
+        "mean_score": round(sum(scores) / len(scores), 2),
+        "ci95": [round(low, 2), round(high, 2)],
+    }
 
 
 def _rate(hits: int, n: int) -> float | None:

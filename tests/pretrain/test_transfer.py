@@ -9,9 +9,11 @@ from cliport.data.seeds import episode_seeds
 from cliport.pretrain.transfer import (
     NAMED_GROUPS,
     colour_report,
+    named_colors,
     named_group,
     scene_colors,
     scenes_summary,
+    score_by_named,
     split_by_colour,
 )
 from cliport.pretrain.vocabulary import UNSEEN_COLORS
@@ -79,3 +81,20 @@ def test_colour_report_of_an_agent(tmp_path) -> None:
     assert report["unseen_named"]["swaps"] + report["seen_named"]["swaps"] == 4
     assert sum(part["episodes"] for part in report["by_named"].values()) == 2
     assert sum(part["swaps"] for part in report["by_named"].values()) == 4
+
+
+def test_named_colours_and_scores_by_what_is_named() -> None:
+    assert named_colors("put the pink blocks in a green bowl") == ("pink", "green")
+    with pytest.raises(ValueError, match="names no colour"):
+        named_colors("stack the blocks")
+    episodes = [
+        {"seed": 1, "total_reward": 1.0, "actions": 2, "instruction": "put the orange blocks in a blue bowl"},
+        {"seed": 2, "total_reward": 0.5, "actions": 2, "instruction": "put the purple blocks in a red bowl"},
+        {"seed": 3, "total_reward": 1.0, "actions": 2, "instruction": "put the red blocks in a green bowl"},
+    ]
+    groups = score_by_named({"episodes": episodes})
+    assert groups["block_unseen"]["episodes"] == 2 and groups["block_unseen"]["mean_score"] == 75.0
+    assert groups["block_unseen"]["solved"] == 1 and groups["neither_unseen"]["solved"] == 1
+    assert groups["both_unseen"] == {"episodes": 0, "mean_score": None, "ci95": None, "solved": 0}
+    with pytest.raises(ValueError, match="records no instruction"):
+        score_by_named({"episodes": [{"seed": 4, "total_reward": 0.0, "actions": 1}]})
