@@ -3,9 +3,9 @@ colour unseen, both, or neither (CLIPort's ``-unseen-colors`` test palette share
 seen one, so its mean score mixes seen and unseen words).
 
 Reads evaluation results (``cliport-eval``'s JSON, or a study cell's ``eval/TASK-test-STEP.json``) and prints one
-JSON object: per file, per group, episodes, mean score with its 95 % interval and episodes solved, then the groups
-pooled over the files. Results written before episodes kept their instruction are read with ``--rebuild``: each
-episode's scene is reset to read it (deterministic: the same seed gives the same scene).
+JSON object: per file, per group, episodes, mean score with its 95 % interval and episodes solved, then the same
+for the files' episodes pooled. Results written before episodes kept their instruction are read with
+``--rebuild``: each episode's scene is reset to read it (deterministic: the same seed gives the same scene).
 
     python scripts/score_by_named.py studies/s0/runs/*/eval/put-block-in-bowl-unseen-colors-test-2000.json
 """
@@ -32,11 +32,11 @@ def parse_args() -> object:
 
 def main() -> None:
     from cliport.evaluation.instruction_following import scene_instructions
-    from cliport.pretrain.transfer import NAMED_GROUPS, mean_score, named_colors, named_group, score_by_named
+    from cliport.pretrain.transfer import score_by_named
 
     args = parse_args()
-    report: dict[str, object] = {"files": {}}
-    pooled: dict[str, list[float]] = {name: [] for name in NAMED_GROUPS}
+    files: dict[str, object] = {}
+    episodes: list[dict[str, object]] = []
     for path in args.results:
         if not os.path.isfile(path):
             raise ConfigError(f"no evaluation result at {path}")
@@ -51,13 +51,11 @@ def main() -> None:
             for episode in result["episodes"]:
                 episode.setdefault("instruction", found.get(episode["seed"]))
         try:
-            report["files"][path] = score_by_named(result)  # type: ignore[index]
-            for episode in result["episodes"]:
-                group = named_group(*named_colors(episode["instruction"]))
-                pooled[group].append(100 * episode["total_reward"])
+            files[path] = score_by_named(result)
         except ValueError as e:
             raise ConfigError(f"{path}: {e}") from e
-    report["pooled"] = {name: mean_score(scores) for name, scores in pooled.items()}
+        episodes += result["episodes"]
+    report = {"files": files, "pooled": score_by_named({"episodes": episodes})}
     print(json.dumps(report, indent=2))
 
 

@@ -68,11 +68,11 @@ def score_by_named(result: dict[str, Any]) -> dict[str, dict[str, Any]]:
             raise ValueError(f"episode {episode['seed']} records no instruction (evaluated before they were kept)")
         groups[named_group(*named_colors(episode["instruction"]))].append(100 * episode["total_reward"])
     return {
-        name: {**mean_score(scores), "solved": sum(score > 99 for score in scores)} for name, scores in groups.items()
+        name: {**_mean_score(scores), "solved": sum(score > 99 for score in scores)} for name, scores in groups.items()
     }
 
 
-def mean_score(scores: list[float]) -> dict[str, Any]:
+def _mean_score(scores: list[float]) -> dict[str, Any]:
     """``episodes``, ``mean_score`` and its 95 % interval ``ci95`` of scores in [0, 100]; None where there are none."""
     if not scores:
         return {"episodes": 0, "mean_score": None, "ci95": None}

@@ -48,7 +48,7 @@ def test_groups_per_file_and_pooled(tmp_path: Path, run_script) -> None:
     assert first["both_unseen"]["episodes"] == 1 and first["neither_unseen"]["episodes"] == 0
     pooled = report["pooled"]
     assert pooled["block_unseen"]["episodes"] == 2 and pooled["block_unseen"]["mean_score"] == 50.0
-    assert pooled["neither_unseen"] == {"episodes": 1, "mean_score": 100.0, "ci95": [100.0, 100.0]}
+    assert pooled["neither_unseen"] == {"episodes": 1, "mean_score": 100.0, "ci95": [100.0, 100.0], "solved": 1}
 
 
 def test_an_older_result_has_its_instructions_read_from_its_scenes(tmp_path: Path, run_script) -> None:
