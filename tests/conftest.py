@@ -2,7 +2,8 @@
 and paper-size: skipped unless ``--e2e``; CI runs them after the default run, ``pytest --e2e -m e2e ...``);
 ``slow`` tests (run only with ``--runslow``). GPU tests skip where CUDA is absent. Tests that build paper-size
 nets are also marked ``paper_size``: CI runs them serially (``pytest --e2e -m paper_size``, no ``-n``), so that
-two of them are never in memory, or on disk, at once."""
+two of them are never in memory, or on disk, at once. Tests that start processes on every core (a Ray cluster) are
+also marked ``whole_machine``: CI runs them alone, after the other end-to-end tests."""
 
 from __future__ import annotations
 

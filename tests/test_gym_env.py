@@ -48,6 +48,7 @@ def test_importing_cliport_registers_without_the_simulator_or_torch() -> None:
     assert out.stdout.split() == ["[]", "False"]  # the wrapper itself does not need torch either
 
 
+@pytest.mark.e2e  # ~20 s of resets and steps; the spaces and an oracle episode are checked below
 def test_check_env_passes() -> None:
     env = gym.make(env_id(TASK), camera_scale=0.5)
     with warnings.catch_warnings(record=True) as caught:

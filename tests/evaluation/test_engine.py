@@ -131,6 +131,7 @@ def test_worker_counts(monkeypatch):
         resolve_workers(4, 2, "--val-workers")
 
 
+@pytest.mark.e2e  # waits out a 15 s step timeout
 def test_a_hung_worker_is_killed_logged_replaced_and_its_episode_rerun(tmp_path, monkeypatch, caplog):
     config = EnvConfig.defaults(camera_scale=0.5)
     with EvalEngine(TASK, "val", config, workers=2, progress=False) as engine:
@@ -151,6 +152,7 @@ def test_a_hung_worker_is_killed_logged_replaced_and_its_episode_rerun(tmp_path,
     assert len(lines) == 1 and "did not answer within 15 s" in lines[0] and "seed 3 of block-insertion-val" in lines[0]
 
 
+@pytest.mark.e2e  # waits for two hung workers
 def test_ctrl_c_during_hung_workers_stops_everything_within_seconds(tmp_path, monkeypatch):
     """Both workers stuck in what looks like a native call (SIGTERM blocked) and no step timeout: a Ctrl-C
     still ends the run, and closing kills both in parallel (about SHUTDOWN_GRACE + 3 s, not 10 s each)."""

@@ -73,6 +73,7 @@ def _copy_run(run_dir: str, to, steps: tuple[int, ...] = (1, 2)) -> str:
 VAL_TASK = "block-insertion"
 
 
+@pytest.mark.e2e  # waits out a step timeout
 def test_a_hung_simulator_hangs_neither_validation_nor_training(trained_run, tmp_path, monkeypatch):
     """Beside-mode validation whose simulator hangs in its episode: the worker is killed and replaced,
     finish() returns (training would end), and val.json is what an undisturbed validation writes."""

@@ -20,7 +20,7 @@ from cliport.study.status import status_report
 from cliport.utils.files import read_json
 from cliport.utils.run_dir import RunDir
 
-pytestmark = [pytest.mark.e2e]
+pytestmark = [pytest.mark.e2e, pytest.mark.whole_machine]
 ray = pytest.importorskip("ray")
 
 TASKS = ["block-insertion", "align-box-corner"]  # 3-action episodes: the cheapest evaluations

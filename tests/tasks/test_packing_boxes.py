@@ -17,7 +17,7 @@ def test_kd_split_covers_the_box_with_cells_of_min_side():
     assert len(cells) > 1
 
 
-@pytest.mark.parametrize("seed", [0, 4])
+@pytest.mark.parametrize("seed", [0, pytest.param(4, marks=pytest.mark.e2e)])
 def test_packing_boxes_oracle_completes(seed):
     task = tasks.make("packing-boxes")
     with Environment(EnvConfig.defaults(camera_scale=0.5), task=task) as env:

@@ -169,6 +169,7 @@ def converted_run(transporter_ckpt, tmp_path_factory) -> str:
     return run
 
 
+@pytest.mark.e2e  # the simulator's episodes; the converted agent's actions are checked above
 def test_cliport_eval_runs_a_converted_run_end_to_end(converted_run, tmp_path, capsys) -> None:
     from cliport.cli import eval as eval_cli
 

@@ -40,6 +40,8 @@ def recorded_demos(tmp_path_factory: pytest.TempPathFactory) -> str:
 
 
 def test_cliport_train_from_recorded_demos_imports_no_simulator(recorded_demos: str, tmp_path) -> None:
+    # No --n-rotations: the parser, and the task registry it asks for the default place rotations, once imported
+    # the simulator, and training on a machine without PyBullet died at its start.
     run = tmp_path / "run"
     argv = [
         "cliport-train", "--agent", "transporter_only", "--task", "place-red-in-green", "--n-demos", "2",
