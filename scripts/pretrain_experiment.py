@@ -18,7 +18,9 @@ The arm ``published`` (``--arms random pretrained published``) runs CLIPort's RN
 instruction and its phrases joins the semantic decoder's laterals; ``pretrained-maps-only`` also takes the sentence
 out of the decoder's gates (``--no-language-gates``), so the instruction reaches the nets through the maps alone.
 ``pretrained-bank`` and ``pretrained-bank-only`` are those two with ``--similarity-bank``: each map the probability
-of its text against the training instructions' phrases.
+of its text against the training instructions' phrases. ``pretrained-bank-dropout`` is ``pretrained-bank`` with
+``--gate-phrase-dropout 0.5``: the gates' sentence loses half its phrases' colour words in training, and every
+phrase the demos never showed at act time.
 """
 
 from __future__ import annotations
@@ -45,6 +47,7 @@ ARMS = (
     "pretrained-maps-only",
     "pretrained-bank",
     "pretrained-bank-only",
+    "pretrained-bank-dropout",
     "published",
 )
 #: The similarity-map flags of each arm that trains on random or pretrained weights.
@@ -55,6 +58,7 @@ MAP_FLAGS = {
     "pretrained-maps-only": ["--similarity-maps", "--no-language-gates"],
     "pretrained-bank": ["--similarity-maps", "--similarity-bank"],
     "pretrained-bank-only": ["--similarity-maps", "--similarity-bank", "--no-language-gates"],
+    "pretrained-bank-dropout": ["--similarity-maps", "--similarity-bank", "--gate-phrase-dropout", "0.5"],
 }
 QUICKSTART = os.path.join(os.path.dirname(os.path.abspath(__file__)), "quickstart.py")
 

@@ -139,14 +139,16 @@ class PickPlaceAgent(nn.Module):
             return None
         assert self.encoder is not None
         texts = sentences.check_instructions(self.name, lang)
-        features = self.encoder.sentence_features(texts)
-        if self.centers_sentences:
-            features = sentences.centred(features, self.sentence_mean, self.sentence_scale, self._sentences_fitted)
         if self.phrase_bank is not None and not self.phrase_bank.fitted:
             raise RuntimeError(
                 "this agent's similarity maps compete with a phrase bank that was never fitted: call "
                 "agent.phrase_bank.fit(agent.encoder, the training instructions) first (cliport-train does)"
             )
+        rate = getattr(self.config, "gate_phrase_dropout", 0.0)
+        gated = sentences.gate_texts(self.encoder, texts, rate, self.phrase_bank, self.training)
+        features = self.encoder.sentence_features(gated)
+        if self.centers_sentences:
+            features = sentences.centred(features, self.sentence_mean, self.sentence_scale, self._sentences_fitted)
         if getattr(self.config, "similarity_maps", False):
             features = torch.cat([features, sentences.similarity_texts(self.encoder, texts)], dim=1)
         return features

@@ -106,6 +106,10 @@ class CLIPConfig(LanguageConfig):
         language_gates: the semantic decoder's layers are gated by the sentence feature, as CLIPort's are; false
             (needs ``similarity_maps``): they read a zero sentence feature, so that the instruction reaches the
             nets through the similarity maps alone, where a word unseen in the demos still finds its colour.
+        gate_phrase_dropout: with ``similarity_bank`` and the gates, above 0: the sentence the gates read loses a
+            phrase's describing words ("the pink block" -> "the block") with this probability per phrase in
+            training, and at act time whenever the phrase bank was not fitted on that phrase, so that the gates
+            read the words the demos showed and the maps the others (the maps always read every phrase).
     """
 
     weight_sources: ClassVar[tuple[str, ...]] = ("clip_weights",)
@@ -117,6 +121,7 @@ class CLIPConfig(LanguageConfig):
     similarity_scale: float
     similarity_bank: bool
     language_gates: bool
+    gate_phrase_dropout: float
 
     def validate(self) -> None:
         """As :meth:`AgentConfig.validate`, the similarity scale positive, and the encoder name an open_clip
@@ -130,6 +135,13 @@ class CLIPConfig(LanguageConfig):
             raise ConfigError("similarity_bank = true needs similarity_maps, the maps it makes probabilities of")
         if not self.language_gates and not self.similarity_maps:
             raise ConfigError("language_gates = false needs similarity_maps: without both the nets read no instruction")
+        if not 0 <= self.gate_phrase_dropout < 1:
+            raise ConfigError(f"gate_phrase_dropout is a probability below 1, got {self.gate_phrase_dropout}")
+        if self.gate_phrase_dropout and not (self.similarity_bank and self.language_gates):
+            raise ConfigError(
+                "gate_phrase_dropout needs similarity_bank (the phrases the demos showed) and language_gates (the "
+                "sentence it drops phrases from)"
+            )
         from cliport.models.encoders.clip_registry import check_model_name
 
         check_model_name(self.semantic_encoder)

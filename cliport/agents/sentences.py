@@ -6,6 +6,8 @@ over their centred RMS norm, so that what the instructions share does not drown 
 numbers live in the agent's ``sentence_mean`` and ``sentence_scale`` buffers (saved with its weights); they are
 fitted once, when training starts (:func:`fit_centering`).
 
+With ``gate_phrase_dropout`` the features are of the instructions as the gates read them (:func:`gate_texts`).
+
 An agent with ``similarity_maps`` appends, after them, the unit text embeddings its nets compare with the image's
 dense embeddings (:func:`similarity_texts`): the instruction's and its phrases', never centred.
 """
@@ -15,7 +17,12 @@ from __future__ import annotations
 import torch
 
 from cliport.models.encoders.base import FrozenEncoder
-from cliport.models.encoders.dense_clip import SIMILARITY_MAPS, instruction_phrases
+from cliport.models.encoders.dense_clip import (
+    SIMILARITY_MAPS,
+    PhraseBank,
+    instruction_phrases,
+    without_describing_words,
+)
 
 
 def check_instructions(agent_name: str, lang: list[str] | None) -> list[str]:
@@ -78,3 +85,24 @@ def similarity_texts(encoder: FrozenEncoder, texts: list[str]) -> torch.Tensor:
         missing = SIMILARITY_MAPS - len(named)
         rows.append(torch.cat([features.flatten(), features.new_zeros(missing * encoder.sentence_dim)]))
     return torch.stack(rows)
+
+
+def gate_texts(
+    encoder: FrozenEncoder, texts: list[str], rate: float, bank: PhraseBank | None, training: bool
+) -> list[str]:
+    """The instructions as the gates of an agent with ``gate_phrase_dropout`` read them: in training each phrase's
+    describing words dropped with probability ``rate`` (torch's generator), at act time those of every phrase the
+    phrase bank was not fitted on; with ``rate`` 0, the instructions as given."""
+    if not rate:
+        return texts
+    if bank is None:
+        raise RuntimeError("gate_phrase_dropout reads the phrase bank, and this agent has none")
+    out = []
+    for text in texts:
+        phrases = instruction_phrases(text)
+        if training:
+            drop = (torch.rand(len(phrases)) < rate).tolist()
+        else:
+            drop = [not held for held in bank.holds(encoder, phrases)]
+        out.append(without_describing_words(text, drop))
+    return out

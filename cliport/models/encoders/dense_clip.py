@@ -33,21 +33,40 @@ _BREAKS = frozenset(
 def instruction_phrases(text: str, n: int = SIMILARITY_MAPS - 1) -> list[str]:
     """The first ``n`` phrases of an instruction, each from an article to the next preposition, article or end:
     "put the pink block in the red bowl" -> ["the pink block", "the red bowl"]; fewer where it has fewer."""
-    phrases: list[list[str]] = []
-    current: list[str] | None = None
-    for word in text.lower().replace(",", " ").replace(".", " ").split():
+    words, spans = _phrase_spans(text)
+    return [" ".join(words[start:end]) for start, end in spans][:n]
+
+
+def without_describing_words(text: str, drop: list[bool]) -> str:
+    """The instruction with the phrases flagged in ``drop`` (in :func:`instruction_phrases`' order) cut to their
+    article and last word: "put the pink block in the red bowl", [True, False] -> "put the block in the red
+    bowl" (lower case, without commas and full stops, where any phrase is cut; else the instruction as given)."""
+    words, spans = _phrase_spans(text)
+    cut = [span for span, flag in zip(spans, drop, strict=False) if flag and span[1] - span[0] > 2]
+    if not cut:
+        return text
+    for start, end in reversed(cut):
+        words[start + 1 : end - 1] = []
+    return " ".join(words)
+
+
+def _phrase_spans(text: str) -> tuple[list[str], list[tuple[int, int]]]:
+    """The instruction's words (lower case, commas and full stops dropped) and its phrases' [start, end) spans:
+    each from an article to the next preposition, article or end, of two words or more."""
+    words = text.lower().replace(",", " ").replace(".", " ").split()
+    spans: list[tuple[int, int]] = []
+    start: int | None = None
+    for i, word in enumerate(words):
         if word in _ARTICLES:
-            if current:
-                phrases.append(current)
-            current = [word]
-        elif current is not None and word in _BREAKS:
-            phrases.append(current)
-            current = None
-        elif current is not None:
-            current.append(word)
-    if current:
-        phrases.append(current)
-    return [" ".join(words) for words in phrases if len(words) > 1][:n]
+            if start is not None:
+                spans.append((start, i))
+            start = i
+        elif start is not None and word in _BREAKS:
+            spans.append((start, i))
+            start = None
+    if start is not None:
+        spans.append((start, len(words)))
+    return words, [(s, e) for s, e in spans if e - s > 1]
 
 
 def _resized_grid(pos: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
@@ -141,6 +160,15 @@ class PhraseBank(nn.Module):
             self.valid[: len(texts)] = True
         self.fitted = True
         return len(texts)
+
+    def holds(self, encoder: Any, phrases: list[str]) -> list[bool]:
+        """Whether each phrase is one the bank was fitted on (its text embedding is one of the bank's)."""
+        if not phrases:
+            return []
+        with torch.no_grad():
+            texts = F.normalize(encoder.sentence_features(phrases), dim=1).to(self.embeddings)
+            cosines = texts @ self.embeddings[self.valid].T
+        return [bool(c) for c in (cosines.max(dim=1).values > 1 - 1e-4).tolist()]
 
     def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):  # type: ignore[no-untyped-def]  # torch's hook
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
