@@ -60,7 +60,7 @@ def test_times_the_training_loop_act_loader_and_the_reference(tmp_path):
     assert "width 0.125" in report["ratio_note"]
 
 
-def test_bad_input_is_an_argparse_error():
+def test_bad_input_is_an_argparse_error(run_script):
     for args, phrase in ((["--width", "0"], "--width"), (["--reference-dir", "/nonexistent"], "ref_bench.py")):
-        out = _run(*args)
+        out = run_script("bench_train.py", *args)
         assert out.returncode == 2 and phrase in out.stderr and "Traceback" not in out.stderr, out.stderr
